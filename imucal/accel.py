@@ -1,0 +1,301 @@
+"""Accelerometer calibration (method.md §3: M2, M3 and the L-curve)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ImucalError
+from .lcurve import lcurve_corner
+from .lm import FitReport, fit_tikhonov
+from .models import ACC_THETA0, SensorModel, acc_T
+
+DEFAULT_LAMBDAS = np.logspace(-8, 3, 45)
+
+
+@dataclass(frozen=True)
+class AccSettings:
+    """``lam`` is ``"auto"`` (L-curve corner) or a fixed value, 0 included. ``points`` is how
+    static samples become fit points: ``"thesis"`` (99 evenly spread samples per block averaged
+    in groups of 10), ``"chunks"`` (every sample, averaged in 10 consecutive chunks) or
+    ``"mean"`` (one point per block)."""
+
+    lam: float | str = "auto"
+    lambdas: tuple[float, ...] = tuple(DEFAULT_LAMBDAS)
+    points: str = "thesis"
+    n_select: int = 99
+    n_group: int = 10
+
+
+@dataclass(frozen=True)
+class Nominal:
+    """The frame the fit runs in: ``a_n = (a_raw - offset) / scale`` has norm about 1.
+
+    The Tikhonov prior ``theta_0`` (identity) means "the sensor is nominal"; in g or m/s^2
+    that is the raw signal itself, in raw counts there is no nominal, so an isotropic sphere
+    fit of the still points stands in for the datasheet's offset and sensitivity.
+    """
+
+    offset: np.ndarray
+    scale: float
+    how: str
+
+    def to_nominal(self, raw: np.ndarray) -> np.ndarray:
+        return (raw - self.offset) / self.scale
+
+
+@dataclass(frozen=True)
+class LCurve:
+    lambdas: np.ndarray
+    residual_norm: np.ndarray  # rho = |r_data|
+    solution_norm: np.ndarray  # eta = |theta - theta_0| (nominal frame)
+    thetas: np.ndarray  # (L, 9) nominal-frame solutions
+    corner: int  # index of the chosen lambda, -1 when lambda was fixed off the grid
+    curvature: np.ndarray
+
+
+@dataclass(frozen=True)
+class AccFit:
+    """The accelerometer calibration of one segment, in the raw signal's units."""
+
+    model: SensorModel  # a = T K (a_raw - b), a in units of |g| (g_out)
+    std: np.ndarray  # standard errors of (a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z)
+    theta_nominal: np.ndarray
+    nominal: Nominal
+    g_out: float
+    lam: float
+    report: FitReport
+    starts: dict[str, float]  # regularised cost reached from each start
+    lcurve: LCurve | None
+    n_points: int
+    n_blocks: int
+    warnings: list[str] = field(default_factory=list)
+
+
+def select_points(acc: np.ndarray, blocks: np.ndarray, mode: str = "thesis", n_select: int = 99,
+                  n_group: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Low-noise fit points from each static block (thesis §3.2), vectorised over blocks.
+
+    Returns the points (P, 3) and the index of the block each came from (P,). Averaging before
+    the fit also shrinks the noise bias of the norm, ``E|a+n| ~ |a| + sigma^2/|a|`` (§3).
+    """
+    if len(blocks) == 0:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    starts, ends = blocks[:, 0], blocks[:, 1]
+    lengths = ends - starts
+    if mode == "mean":
+        cs = np.vstack([np.zeros((1, 3)), np.cumsum(acc - acc[0], axis=0)])
+        pts = (cs[ends] - cs[starts]) / lengths[:, None] + acc[0]
+        return pts, np.arange(len(blocks))
+    if mode == "thesis":
+        # n_select samples evenly spread over each block, then averaged in groups of n_group.
+        frac = np.linspace(0.0, 1.0, n_select)
+        idx = starts[:, None] + np.floor(frac[None, :] * (lengths[:, None] - 1)).astype(np.int64)
+        samples = acc[idx]  # (B, n_select, 3)
+        groups = np.array_split(np.arange(n_select), int(np.ceil(n_select / n_group)))
+        pts = np.stack([samples[:, g].mean(axis=1) for g in groups], axis=1)  # (B, G, 3)
+    elif mode == "chunks":
+        n_chunks = n_group
+        edges = starts[:, None] + (np.arange(n_chunks + 1)[None, :] * lengths[:, None]) // n_chunks
+        cs = np.vstack([np.zeros((1, 3)), np.cumsum(acc - acc[0], axis=0)])
+        sums = cs[edges[:, 1:]] - cs[edges[:, :-1]]
+        counts = (edges[:, 1:] - edges[:, :-1])[..., None]
+        pts = sums / np.maximum(counts, 1) + acc[0]
+    else:
+        raise ImucalError(f"unknown point selection {mode!r}; expected thesis, chunks or mean",
+                          source="settings", field="points")
+    g = pts.shape[1]
+    return pts.reshape(-1, 3), np.repeat(np.arange(len(blocks)), g)
+
+
+def residuals(theta: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Data part of M3: ``r_i = 1 - |T K (a_i - b)|`` in the nominal frame (|g| = 1)."""
+    y = (pts - theta[6:9]) * theta[3:6] @ acc_T(theta).T
+    return 1.0 - np.sqrt(np.einsum("ij,ij->i", y, y))
+
+
+def jacobian(theta: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Analytic d r / d theta of :func:`residuals` (r = 1 - |y|, y = T K (a - b))."""
+    T = acc_T(theta)
+    K = theta[3:6]
+    v = pts - theta[6:9]
+    u = v * K
+    y = u @ T.T
+    yh = y / np.linalg.norm(y, axis=1, keepdims=True)
+    J = np.empty((len(pts), 9))
+    J[:, 0] = yh[:, 0] * u[:, 1]  # dy/da_yz = (-u_y, 0, 0), dr = -yh . dy
+    J[:, 1] = -yh[:, 0] * u[:, 2]  # dy/da_zy = (u_z, 0, 0)
+    J[:, 2] = yh[:, 1] * u[:, 2]  # dy/da_zx = (0, -u_z, 0)
+    yT = yh @ T  # yT[:, j] = yh . T[:, j]
+    J[:, 3:6] = -yT * v  # dy/ds_j = T[:, j] v_j
+    J[:, 6:9] = yT * K  # dy/db_j = -T[:, j] s_j
+    return J
+
+
+def sphere_fit(pts: np.ndarray) -> tuple[np.ndarray, float]:
+    """Closed-form least-squares sphere: |p - c|^2 = r^2 is linear in (c, r^2 - |c|^2)."""
+    A = np.hstack([2 * pts, np.ones((len(pts), 1))])
+    rhs = np.einsum("ij,ij->i", pts, pts)
+    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
+    c = sol[:3]
+    r2 = sol[3] + c @ c
+    return c, float(np.sqrt(r2)) if r2 > 0 else float("nan")
+
+
+def ellipsoid_start(pts: np.ndarray) -> np.ndarray | None:
+    """Closed-form start for M2: a linear ellipsoid fit of the still points (nominal frame).
+
+    Fits the quadric ``x'Ax + d'x + e = 0`` by the smallest singular vector of its design
+    matrix, reads the centre ``b = -A^-1 d / 2`` and ``M = A / (b'Ab - e)`` so that
+    ``(x-b)' M (x-b) = 1``. Since ``M = (TK)'(TK)`` with ``TK`` upper triangular with a positive
+    diagonal, ``TK`` is the transposed Cholesky factor of ``M`` and gives T, K directly.
+    Returns ``None`` where the points do not determine an ellipsoid (too few orientations).
+    """
+    if len(pts) < 9:
+        return None
+    mu = pts.mean(axis=0)
+    sc = float(np.std(pts - mu)) or 1.0
+    x, y, z = ((pts - mu) / sc).T
+    D = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z,
+                         np.ones_like(x)])
+    _, s, vt = np.linalg.svd(D, full_matrices=False)
+    if s[-1] > 1e-6 * s[0] and s[-2] < 1e-9 * s[0]:
+        return None
+    if s[-2] < 1e-8 * s[0]:  # a family of quadrics fits: the poses do not span enough directions
+        return None
+    p = vt[-1]
+    A = np.array([[p[0], p[3], p[4]], [p[3], p[1], p[5]], [p[4], p[5], p[2]]])
+    d = p[6:9]
+    e = p[9]
+    try:
+        c = -0.5 * np.linalg.solve(A, d)
+    except np.linalg.LinAlgError:
+        return None
+    k = c @ A @ c - e
+    if k == 0:
+        return None
+    M = A / k
+    try:
+        L = np.linalg.cholesky(M)  # M = L L', so TK = L' (scaled back below)
+    except np.linalg.LinAlgError:
+        return None
+    U = L.T / sc
+    b = mu + sc * c
+    s_x, s_y, s_z = U[0, 0], U[1, 1], U[2, 2]
+    theta = np.array([-U[0, 1] / s_y, U[0, 2] / s_z, -U[1, 2] / s_z, s_x, s_y, s_z, *b])
+    return theta if np.all(np.isfinite(theta)) else None
+
+
+def _fit(pts: np.ndarray, lam: float, start: np.ndarray, name: str) -> FitReport:
+    return fit_tikhonov(lambda th: residuals(th, pts), lambda th: jacobian(th, pts), start,
+                        ACC_THETA0, lam, start_name=name)
+
+
+def best_fit(pts: np.ndarray, lam: float, starts: dict[str, np.ndarray]
+             ) -> tuple[FitReport, dict[str, float]]:
+    """Run LM from every start; keep the lowest regularised cost (the thesis's local minima)."""
+    reports = {}
+    for name, th in starts.items():
+        try:
+            reports[name] = _fit(pts, lam, th, name)
+        except FloatingPointError:
+            continue
+    if not reports:
+        raise ImucalError("the accelerometer fit produced non-finite residuals from every start",
+                          source="accelerometer", field="fit")
+    best = min(reports.values(), key=lambda r: (r.cost, r.start_name))
+    return best, {k: r.cost for k, r in reports.items()}
+
+
+def make_nominal(pts: np.ndarray, acc_unit: str, g_in: float) -> Nominal:
+    """The nominal frame of the fit (see :class:`Nominal`); ``g_in`` is |g| in input units."""
+    if acc_unit == "counts":
+        c, r = sphere_fit(pts)
+        if not np.isfinite(r) or r <= 0:
+            raise ImucalError("cannot find a nominal offset and sensitivity for raw counts: the "
+                              "still poses do not span enough directions",
+                              source="accelerometer", field="static blocks")
+        return Nominal(offset=c, scale=r, how="sphere fit of the still points (raw counts)")
+    return Nominal(offset=np.zeros(3), scale=g_in, how=f"input unit {acc_unit}, |g| = {g_in:g}")
+
+
+def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: str, g_in: float,
+                            g_out: float, settings: AccSettings = AccSettings(),
+                            nominal: Nominal | None = None) -> AccFit:
+    """Fit M2 to the still blocks of one segment by M3, lambda from the L-curve or fixed.
+
+    ``g_in`` is |g| in the raw signal's units (1 for g, 9.80665 for m/s^2; unused for counts)
+    and ``g_out`` the norm the calibrated still samples must have.
+    """
+    pts_raw, _ = select_points(acc, blocks, settings.points, settings.n_select, settings.n_group)
+    if len(pts_raw) < 9:
+        raise ImucalError(f"only {len(blocks)} static blocks ({len(pts_raw)} fit points); the "
+                          "9-parameter accelerometer model needs at least 9 points from several "
+                          "orientations", source="accelerometer", field="static blocks")
+    nominal = nominal or make_nominal(pts_raw, acc_unit, g_in)
+    pts = nominal.to_nominal(pts_raw)
+
+    starts = {"prior": ACC_THETA0.copy()}
+    ell = ellipsoid_start(pts)
+    if ell is not None and np.all(ell[3:6] > 0):
+        starts["ellipsoid"] = ell
+    warnings: list[str] = []
+
+    curve = None
+    if settings.lam == "auto":
+        curve, (report, start_costs) = _lcurve(pts, np.asarray(settings.lambdas, float), starts)
+        lam = float(curve.lambdas[curve.corner])
+    else:
+        lam = float(settings.lam)
+        if not np.isfinite(lam) or lam < 0:
+            raise ImucalError(f"lambda must be 'auto' or a number >= 0, got {settings.lam!r}",
+                              source="settings", field="lambda")
+        report, start_costs = best_fit(pts, lam, starts)
+
+    warnings += _sanity(report, pts, pts_raw, nominal)
+    theta = report.theta
+    # Back to raw units: a = g_out T K_n ((a_raw - c0)/s0 - b_n) = T K (a_raw - b)
+    # with K = K_n g_out / s0 and b = c0 + s0 b_n; standard errors scale the same way.
+    k_scale = g_out / nominal.scale
+    model = SensorModel(T=acc_T(theta), K=theta[3:6] * k_scale,
+                        b=nominal.offset + nominal.scale * theta[6:9])
+    std = report.std.copy()
+    std[3:6] *= k_scale
+    std[6:9] *= nominal.scale
+    return AccFit(model=model, std=std, theta_nominal=theta, nominal=nominal, g_out=g_out,
+                  lam=lam, report=report, starts=start_costs, lcurve=curve,
+                  n_points=len(pts), n_blocks=len(blocks), warnings=warnings)
+
+
+def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
+            ) -> tuple[LCurve, tuple[FitReport, dict[str, float]]]:
+    """Solve on the lambda grid, record (rho, eta), pick the corner (thesis ch. 5)."""
+    fits = [best_fit(pts, lam, starts) for lam in lambdas]
+    rho = np.array([f[0].residual_norm for f in fits])
+    eta = np.array([f[0].solution_norm(ACC_THETA0) for f in fits])
+    corner, curv = lcurve_corner(lambdas, rho, eta)
+    curve = LCurve(lambdas=lambdas, residual_norm=rho, solution_norm=eta,
+                   thetas=np.array([f[0].theta for f in fits]), corner=corner, curvature=curv)
+    return curve, fits[corner]
+
+
+def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal) -> list[str]:
+    """Flag the escape routes of the norm cost (method.md §3) instead of returning them."""
+    out = []
+    th = report.theta
+    if np.any(th[3:6] <= 0):
+        out.append("accelerometer fit reached a non-positive scale: the result is not physical")
+    elif np.any((th[3:6] < 0.5) | (th[3:6] > 2.0)):
+        out.append(f"accelerometer scales {np.round(th[3:6], 3).tolist()} are far from the "
+                   "nominal 1: check the units and the still blocks")
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    if np.any(th[6:9] < lo - 0.5) or np.any(th[6:9] > hi + 0.5):
+        out.append("accelerometer bias lies outside the range of the signal: the fit took the "
+                   "'huge sphere' escape route; record more orientations")
+    if report.cost > report.cost_start * (1 + 1e-9):
+        out.append("accelerometer fit ended with a higher cost than it started from")
+    if np.max(np.abs(th[:3])) > 0.2:
+        out.append(f"accelerometer misalignment angles {np.round(th[:3], 3).tolist()} rad are "
+                   "implausibly large")
+    return out

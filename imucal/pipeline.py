@@ -1,0 +1,189 @@
+"""The one-way flow: detect -> group -> accelerometer -> gyroscope -> apply -> result."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .accel import AccFit, AccSettings, calibrate_accelerometer, make_nominal, select_points
+from .calibration import CalibratedSignals, Calibration, SegmentModels
+from .detect import Detection, DetectSettings, detect_static
+from .errors import ImucalError
+from .group import Grouping, GroupSettings, group_blocks
+from .gyro import GyroFit, GyroSettings, calibrate_gyroscope
+from .quality import Quality, distinct_orientations, quality_figures
+from .session import STANDARD_GRAVITY, Session
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Every setting of method.md, flat, with the thesis's defaults (see each module)."""
+
+    # detector (§1)
+    window: int | None = None
+    min_len: int | None = None
+    k: float = 2.0
+    init: tuple[float, float] = (0.5, 3.0)
+    statistic: str = "thesis"
+    # grouping (§2)
+    single_segment: bool = False
+    delta: float = 0.01
+    min_blocks: int = 12
+    # accelerometer (§3)
+    g: float | None = None
+    lam: float | str = "auto"
+    points: str = "thesis"
+    # gyroscope (§4)
+    gyro_lam: float = 1e-4
+    gyro_bias: str = "all"
+    optimise_gyro_bias: bool = False
+    gyro_nominal_scale: float | None = None
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["init"] = list(self.init)
+        return d
+
+    @property
+    def detect(self) -> DetectSettings:
+        return DetectSettings(window=self.window, min_len=self.min_len, k=self.k,
+                              init=tuple(self.init), statistic=self.statistic)
+
+    @property
+    def group(self) -> GroupSettings:
+        return GroupSettings(single_segment=self.single_segment, delta=self.delta,
+                             min_blocks=self.min_blocks)
+
+    @property
+    def acc(self) -> AccSettings:
+        return AccSettings(lam=self.lam, points=self.points)
+
+    @property
+    def gyro(self) -> GyroSettings:
+        return GyroSettings(lam=self.gyro_lam, bias=self.gyro_bias,
+                            optimise_bias=self.optimise_gyro_bias,
+                            nominal_scale=self.gyro_nominal_scale)
+
+
+@dataclass(frozen=True)
+class Segment:
+    index: int
+    blocks: tuple[int, int]  # [first, last + 1) block indices
+    t_start: float  # start of its first still block, s
+    t_end: float  # end of its last still block, s
+    acc: AccFit
+    gyro: GyroFit | None
+    orientations: int  # distinct still orientations (15 degrees apart)
+
+
+@dataclass(frozen=True)
+class Result:
+    """Everything a run produced: the calibration and every intermediate the viewer shows."""
+
+    session: Session
+    settings: Settings
+    detection: Detection
+    block_times: np.ndarray  # (B, 2) [t_start, t_end) of each static block, s
+    whole: AccFit  # the first whole-session accelerometer fit (used for grouping)
+    grouping: Grouping
+    segments: list[Segment]
+    calibration: Calibration
+    calibrated: CalibratedSignals
+    quality: Quality
+    g_in: float
+    warnings: list[str] = field(default_factory=list)
+
+    def apply(self, session: Session) -> CalibratedSignals:
+        return self.calibration.apply(session)
+
+
+def resolve_g(session: Session, g: float | None) -> tuple[float, float, str]:
+    """|g| in the raw unit, the calibrated output's norm and its unit (method.md §0)."""
+    if g is not None and (not np.isfinite(g) or g <= 0):
+        raise ImucalError(f"|g| must be a positive number, got {g}", source="settings", field="g")
+    if session.acc_unit == "m/s^2":
+        g_out = g if g is not None else STANDARD_GRAVITY
+        g_in = g_out if g_out != 1.0 else STANDARD_GRAVITY
+    else:
+        g_out = g if g is not None else 1.0
+        g_in = 1.0
+    return g_in, g_out, "g" if g_out == 1.0 else "m/s^2"
+
+
+def calibrate(session: Session, settings: Settings | None = None, **overrides) -> Result:
+    """Calibrate a session: the whole method of method.md, one stage after the other."""
+    settings = dataclasses.replace(settings or Settings(), **overrides)
+    warnings: list[str] = list(session.notes)
+    g_in, g_out, acc_unit = resolve_g(session, settings.g)
+
+    det = detect_static(session.acc, session.t_acc, settings.detect, source=session.source)
+    _check_blocks(session, det, settings)
+    block_times = np.column_stack([session.t_acc[det.blocks[:, 0]],
+                                   session.t_acc[det.blocks[:, 1] - 1]])
+
+    # A first whole-session fit: it gives the grouping calibrated magnitudes (method.md §2).
+    whole = calibrate_accelerometer(session.acc, det.blocks, acc_unit=session.acc_unit,
+                                    g_in=g_in, g_out=g_out, settings=settings.acc)
+    means_n = whole.nominal.to_nominal(det.means)
+    # The grouping fits block means, one point per block where M3 had n_points: scale lambda
+    # so that the prior weighs the same against the data.
+    lam_blocks = whole.lam * len(det.blocks) / whole.n_points
+    grouping = group_blocks(means_n, whole.theta_nominal, lam_blocks, settings.group)
+
+    segments = []
+    for i, (b0, b1) in enumerate(grouping.segments):
+        blocks = det.blocks[b0:b1]
+        if len(grouping.segments) == 1:
+            acc_fit = whole
+        else:
+            acc_fit = calibrate_accelerometer(session.acc, blocks, acc_unit=session.acc_unit,
+                                              g_in=g_in, g_out=g_out, settings=settings.acc,
+                                              nominal=whole.nominal)
+        gyro_fit = None
+        if session.has_gyro:
+            gyro_fit = calibrate_gyroscope(session.gyro, session.t_gyro, block_times[b0:b1],
+                                           acc_fit.model.apply(det.means[b0:b1]),
+                                           session.gyro_unit, settings.gyro)
+        n_orient = distinct_orientations(det.means[b0:b1] - acc_fit.model.b)
+        seg = Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
+                      t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,
+                      orientations=n_orient)
+        segments.append(seg)
+        prefix = f"segment {i}: " if len(grouping.segments) > 1 else ""
+        warnings += [prefix + w for w in acc_fit.warnings]
+        if gyro_fit is not None:
+            warnings += [prefix + w for w in gyro_fit.warnings]
+        if n_orient < 9:
+            warnings.append(f"{prefix}only {n_orient} distinct still orientations; 9 or more are "
+                            "needed to determine the accelerometer's 9 parameters without the "
+                            "prior (the regularisation holds the rest at nominal)")
+
+    calibration = Calibration(
+        segments=tuple(SegmentModels(t_start=s.t_start, t_end=s.t_end, acc=s.acc.model,
+                                     gyro=s.gyro.model if s.gyro else None) for s in segments),
+        acc_unit_raw=session.acc_unit, acc_unit=acc_unit, g=g_out,
+        gyro_unit_raw=session.gyro_unit if session.has_gyro else None)
+    calibrated = calibration.apply(session)
+    quality = quality_figures(session, det, calibrated, segments, g_in, g_out)
+    return Result(session=session, settings=settings, detection=det, block_times=block_times,
+                  whole=whole, grouping=grouping, segments=segments, calibration=calibration,
+                  calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings)
+
+
+def _check_blocks(session: Session, det: Detection, settings: Settings) -> None:
+    n = len(det.blocks)
+    if n >= 9:
+        return
+    still = float(np.mean(det.statistic < det.threshold))
+    hint = ("nearly every sample looks still: was the device moved between poses?"
+            if still > 0.9 else
+            "few samples look still: lie the device down for longer, or raise the threshold "
+            f"multiplier (now k = {settings.k:g})")
+    raise ImucalError(f"found {n} static blocks of at least {det.min_len} samples; the "
+                      f"accelerometer model needs 9 or more, from different orientations; {hint}",
+                      source=session.source, field="static blocks")
+
+
+__all__ = ["Result", "Segment", "Settings", "calibrate", "select_points", "make_nominal"]
