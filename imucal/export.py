@@ -1,0 +1,89 @@
+"""Writing sessions and calibrated signals: .mat (v5), Parquet and CSV, always atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import write_atomic, write_text_atomic
+from .calibration import CalibratedSignals
+from .errors import ImucalError
+from .session import Session
+from .synth import Truth
+
+FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".mat": "mat"}
+
+
+def output_format(path: str | os.PathLike) -> str:
+    fmt = FORMATS.get(Path(path).suffix.lower())
+    if fmt is None:
+        raise ImucalError("unknown output format; expected a name ending in .parquet, .csv or "
+                          ".mat", source=str(path), field="output path")
+    return fmt
+
+
+def write_session_mat(path: str | os.PathLike, session: Session) -> None:
+    """A session as MATLAB v5 named variables ``acc``, ``gyro``, ``t_acc``, ``t_gyro``."""
+    from scipy.io import savemat
+
+    data = {"acc": session.acc, "t_acc": session.t_acc}
+    if session.has_gyro:
+        data |= {"gyro": session.gyro, "t_gyro": session.t_gyro}
+
+    def _w(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            savemat(f, data, do_compression=True, oned_as="column")
+
+    write_atomic(path, _w)
+
+
+def write_truth(path: str | os.PathLike, truth: Truth) -> None:
+    write_text_atomic(path, json.dumps(truth.to_dict(), indent=2) + "\n")
+
+
+def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
+    """Calibrated signals in the format named by the file's ending.
+
+    Tables hold one row per accelerometer sample (``t, ax, ay, az``) and, when the gyroscope
+    runs at the same timestamps, ``gx, gy, gz`` beside them; otherwise the gyroscope goes in
+    a second table (``NAME.gyro.EXT``) for CSV/Parquet, or in ``gyro``/``t_gyro`` in .mat.
+    """
+    fmt = output_format(path)
+    if fmt == "mat":
+        from scipy.io import savemat
+
+        data = {"acc": cal.acc, "t_acc": cal.t_acc}
+        if cal.gyro is not None:
+            data |= {"gyro": cal.gyro, "t_gyro": cal.t_gyro}
+
+        def _w(tmp: Path) -> None:
+            with open(tmp, "wb") as f:
+                savemat(f, data, do_compression=True, oned_as="column")
+
+        write_atomic(path, _w)
+        return
+    import polars as pl
+
+    cols = {"t": cal.t_acc, "ax": cal.acc[:, 0], "ay": cal.acc[:, 1], "az": cal.acc[:, 2]}
+    shared = cal.gyro is not None and np.array_equal(cal.t_acc, cal.t_gyro)
+    if shared:
+        cols |= {"gx": cal.gyro[:, 0], "gy": cal.gyro[:, 1], "gz": cal.gyro[:, 2]}
+    _write_table(path, pl.DataFrame(cols), fmt)
+    if cal.gyro is not None and not shared:
+        p = Path(path)
+        gpath = p.with_name(p.stem + ".gyro" + p.suffix)
+        _write_table(gpath, pl.DataFrame({"t": cal.t_gyro, "gx": cal.gyro[:, 0],
+                                          "gy": cal.gyro[:, 1], "gz": cal.gyro[:, 2]}), fmt)
+
+
+def _write_table(path: str | os.PathLike, df, fmt: str) -> None:
+    def _w(tmp: Path) -> None:
+        if fmt == "parquet":
+            df.write_parquet(tmp)
+        else:
+            df.write_csv(tmp)
+
+    write_atomic(path, _w)
