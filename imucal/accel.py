@@ -72,6 +72,17 @@ class AccFit:
     n_blocks: int
     warnings: list[str] = field(default_factory=list)
 
+    def model_for(self, theta_nominal: np.ndarray) -> SensorModel:
+        """The raw-unit model of a nominal-frame solution (an L-curve point, an LM step)."""
+        return to_raw_model(theta_nominal, self.nominal, self.g_out)
+
+
+def to_raw_model(theta: np.ndarray, nominal: Nominal, g_out: float) -> SensorModel:
+    """Back to raw units: ``a = g_out T K_n ((a_raw - c0)/s0 - b_n) = T K (a_raw - b)`` with
+    ``K = K_n g_out / s0`` and ``b = c0 + s0 b_n``."""
+    return SensorModel(T=acc_T(theta), K=theta[3:6] * (g_out / nominal.scale),
+                       b=nominal.offset + nominal.scale * theta[6:9])
+
 
 def select_points(acc: np.ndarray, blocks: np.ndarray, mode: str = "thesis", n_select: int = 99,
                   n_group: int = 10) -> tuple[np.ndarray, np.ndarray]:
@@ -255,11 +266,8 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
 
     warnings += _sanity(report, pts, pts_raw, nominal)
     theta = report.theta
-    # Back to raw units: a = g_out T K_n ((a_raw - c0)/s0 - b_n) = T K (a_raw - b)
-    # with K = K_n g_out / s0 and b = c0 + s0 b_n; standard errors scale the same way.
-    k_scale = g_out / nominal.scale
-    model = SensorModel(T=acc_T(theta), K=theta[3:6] * k_scale,
-                        b=nominal.offset + nominal.scale * theta[6:9])
+    model = to_raw_model(theta, nominal, g_out)
+    k_scale = g_out / nominal.scale  # standard errors scale as the parameters do
     std = report.std.copy()
     std[3:6] *= k_scale
     std[6:9] *= nominal.scale
