@@ -61,6 +61,7 @@ class AccFit:
 
     model: SensorModel  # a = T K (a_raw - b), a in units of |g| (g_out)
     std: np.ndarray  # standard errors of (a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z)
+    cov: np.ndarray  # (9, 9) their covariance, raw units
     theta_nominal: np.ndarray
     nominal: Nominal
     g_out: float
@@ -268,10 +269,10 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     theta = report.theta
     model = to_raw_model(theta, nominal, g_out)
     k_scale = g_out / nominal.scale  # standard errors scale as the parameters do
-    std = report.std.copy()
-    std[3:6] *= k_scale
-    std[6:9] *= nominal.scale
-    return AccFit(model=model, std=std, theta_nominal=theta, nominal=nominal, g_out=g_out,
+    d = np.r_[np.ones(3), np.full(3, k_scale), np.full(3, nominal.scale)]
+    cov = report.cov * np.outer(d, d)
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return AccFit(model=model, std=std, cov=cov, theta_nominal=theta, nominal=nominal, g_out=g_out,
                   lam=lam, report=report, starts=start_costs, lcurve=curve,
                   n_points=len(pts), n_blocks=len(blocks), warnings=warnings)
 
@@ -307,3 +308,39 @@ def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: No
         out.append(f"accelerometer misalignment angles {np.round(th[:3], 3).tolist()} rad are "
                    "implausibly large")
     return out
+
+
+def output_sensitivity(model: SensorModel, raw: np.ndarray) -> np.ndarray:
+    """d y / d theta (raw units) of ``y = T K (raw - b)`` for each row of ``raw``: (B, 3, 9)."""
+    T, K = model.T, model.K
+    v = raw - model.b
+    u = v * K
+    S = np.zeros((len(raw), 3, 9))
+    S[:, 0, 0] = -u[:, 1]
+    S[:, 0, 1] = u[:, 2]
+    S[:, 1, 2] = -u[:, 2]
+    S[:, :, 3:6] = T[None, :, :] * v[:, None, :]
+    S[:, :, 6:9] = -T[None, :, :] * K[None, None, :]
+    return S
+
+
+def block_mean_cov(acc: np.ndarray, blocks: np.ndarray, fit: AccFit) -> np.ndarray:
+    """Covariance (3B, 3B) of the calibrated block means: sensor noise averaged over each
+    block (independent between blocks) plus the calibration's own uncertainty, which is
+    common to all blocks. Feeds honest standard errors to the gyroscope fit (M5 compares
+    directions that carry both)."""
+    B = len(blocks)
+    n = (blocks[:, 1] - blocks[:, 0]).astype(float)
+    xc = acc - acc[0]
+    cs1 = np.vstack([np.zeros((1, 3)), np.cumsum(xc, axis=0)])
+    cs2 = np.vstack([np.zeros((1, 3)), np.cumsum(xc * xc, axis=0)])
+    m1 = (cs1[blocks[:, 1]] - cs1[blocks[:, 0]]) / n[:, None]
+    m2 = (cs2[blocks[:, 1]] - cs2[blocks[:, 0]]) / n[:, None]
+    var_mean = np.clip(m2 - m1 * m1, 0, None) / np.maximum(n - 1, 1)[:, None]  # per axis
+    M = fit.model.matrix
+    noise = np.einsum("ij,bj,kj->bik", M, var_mean, M)  # M diag(var/n) M'
+    S = output_sensitivity(fit.model, m1 + acc[0]).reshape(3 * B, 9)
+    cov = S @ fit.cov @ S.T
+    idx = np.arange(B)
+    cov.reshape(B, 3, B, 3)[idx, :, idx, :] += noise
+    return cov

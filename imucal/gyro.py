@@ -9,9 +9,9 @@ from scipy.optimize import minimize_scalar
 
 from .errors import ImucalError
 from .integrate import ordered_product, rk4_step_quaternions
-from .lm import FitReport, fit_tikhonov
+from .lm import FitReport, fit_tikhonov, sandwich_cov
 from .models import GYRO_THETA0, SensorModel, gyro_T
-from .quaternion import rotate_inverse
+from .quaternion import rotate_inverse, to_matrix
 
 
 @dataclass(frozen=True)
@@ -149,12 +149,14 @@ def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: n
 
 def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,
                         gravity: np.ndarray, gyro_unit: str,
-                        settings: GyroSettings = GyroSettings()) -> GyroFit:
+                        settings: GyroSettings = GyroSettings(),
+                        gravity_cov: np.ndarray | None = None) -> GyroFit:
     """Fit M4 so that integrating the calibrated rate (M5) turns each block's gravity
     direction into the next one's.
 
     ``block_times`` (B, 2) are the static blocks in seconds and ``gravity`` (B, 3) their mean
-    calibrated accelerations.
+    calibrated accelerations, with ``gravity_cov`` (3B, 3B) their covariance when known (see
+    :func:`direction_error_cov`).
     """
     if len(block_times) < 2:
         raise ImucalError(f"{len(block_times)} static block(s): the gyroscope needs at least two "
@@ -189,7 +191,16 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
 
     report = fit_tikhonov(res, None, theta0, theta0, settings.lam, start_name="prior")
     model = model_of(report.theta)
-    std = report.std.copy()
+    cov = report.cov
+    if gravity_cov is not None:
+        R = to_matrix(tr.rotations(model))
+        meat = direction_error_cov(gravity, gravity_cov, R)
+        n, p = report.jac.shape
+        # Each residual is the difference of two unit vectors: only its 2 components across
+        # u_k carry error to first order, so a transition gives 2 degrees of freedom, not 3.
+        s2 = max(report.data_cost - float(np.trace(meat)), 0.0) / max(2 * n // 3 - p, 1)
+        cov, _ = sandwich_cov(report.jac, settings.lam, s2, meat)
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
     std[6:9] *= s0
     if n_bias:
         std[9:12] /= s0
@@ -220,3 +231,26 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                    u_meas=u_meas, u_pred_before=before, u_pred_after=after,
                    t_transition=np.column_stack([t[tr.starts], t[tr.ends]]),
                    rotation_angle=np.radians(angle), warnings=warnings)
+
+
+def direction_error_cov(gravity: np.ndarray, gravity_cov: np.ndarray, R: np.ndarray
+                        ) -> np.ndarray:
+    """Covariance (3K, 3K) of the residuals ``u_k - R_k^T u_(k-1)`` caused by errors in the
+    measured gravity (noise of each block mean, and the accelerometer calibration's own
+    uncertainty, shared by all blocks).
+
+    Without it the standard errors of the gyroscope parameters come out about twice too small
+    on synthetic sessions: consecutive residuals share a block, and the accelerometer's errors
+    are common to all of them, so the residuals are not independent.
+    """
+    B = len(gravity)
+    K = B - 1
+    norm = np.linalg.norm(gravity, axis=1)
+    u = gravity / norm[:, None]
+    D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # du/dg
+    Ju = np.zeros((K, 3, B, 3))
+    k = np.arange(K)
+    Ju[k, :, k + 1, :] = D[1:]
+    Ju[k, :, k, :] = -np.einsum("kji,kjl->kil", R, D[:-1])  # -R_k^T du_(k-1)/dg
+    Ju = Ju.reshape(3 * K, 3 * B)
+    return Ju @ gravity_cov @ Ju.T

@@ -31,6 +31,8 @@ class FitReport:
     message: str
     jac_cond: float  # condition number of the data Jacobian at the solution
     std: np.ndarray  # per-parameter standard errors (sandwich form, see below)
+    cov: np.ndarray  # (p, p) covariance behind ``std``
+    jac: np.ndarray  # (n, p) data Jacobian at the solution
     trace_theta: np.ndarray  # (I, p) parameters at each accepted step
     trace_cost: np.ndarray  # (I,) regularised cost at each accepted step
     n_data: int
@@ -94,27 +96,33 @@ def fit_tikhonov(
     n = len(r_data)
     data_cost = float(r_data @ r_data)
     J = jacobian(theta) if jacobian is not None else res.jac[:n]
-    std, cond = _sandwich_std(J, lam, data_cost, n)
+    cov, cond = sandwich_cov(J, lam, data_cost / max(n - p, 1))
     return FitReport(
         theta=theta, start=np.asarray(start, float), start_name=start_name, lam=float(lam),
         cost_start=cost_start, cost=float(res.fun @ res.fun), data_cost=data_cost,
         nfev=int(res.nfev), status=int(res.status), message=str(res.message),
-        jac_cond=cond, std=std, trace_theta=np.array(trace_t), trace_cost=np.array(trace_c),
+        jac_cond=cond, std=np.sqrt(np.clip(np.diag(cov), 0, None)), cov=cov, jac=J,
+        trace_theta=np.array(trace_t), trace_cost=np.array(trace_c),
         n_data=n,
     )
 
 
-def _sandwich_std(J: np.ndarray, lam: float, data_cost: float, n: int) -> tuple[np.ndarray, float]:
+def sandwich_cov(J: np.ndarray, lam: float, s2: float, meat: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, float]:
+    """Covariance of the regularised estimate, ``H^-1 J' S J H^-1`` with ``H = J'J + lam I``.
+
+    ``S`` is the residuals' covariance: ``s2 I`` by default, else ``s2 I + meat`` where
+    ``meat`` (n, n) adds correlated error sources. Returns it with cond(J).
+    """
     p = J.shape[1]
-    s = np.linalg.svd(J, compute_uv=False)
-    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    sv = np.linalg.svd(J, compute_uv=False)
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
     JtJ = J.T @ J
-    H = JtJ + lam * np.eye(p)
-    dof = max(n - p, 1)
-    s2 = data_cost / dof
     try:
-        Hi = np.linalg.inv(H)
+        Hi = np.linalg.inv(JtJ + lam * np.eye(p))
     except np.linalg.LinAlgError:
-        return np.full(p, np.inf), cond
-    cov = s2 * Hi @ JtJ @ Hi
-    return np.sqrt(np.clip(np.diag(cov), 0, None)), cond
+        return np.full((p, p), np.inf), cond
+    mid = s2 * JtJ
+    if meat is not None:
+        mid = mid + J.T @ meat @ J
+    return Hi @ mid @ Hi, cond

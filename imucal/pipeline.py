@@ -7,7 +7,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .accel import AccFit, AccSettings, calibrate_accelerometer, make_nominal, select_points
+from .accel import (
+    AccFit,
+    AccSettings,
+    block_mean_cov,
+    calibrate_accelerometer,
+    make_nominal,
+    select_points,
+)
 from .calibration import CalibratedSignals, Calibration, SegmentModels
 from .detect import Detection, DetectSettings, detect_static
 from .errors import ImucalError
@@ -145,7 +152,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         if session.has_gyro:
             gyro_fit = calibrate_gyroscope(session.gyro, session.t_gyro, block_times[b0:b1],
                                            acc_fit.model.apply(det.means[b0:b1]),
-                                           session.gyro_unit, settings.gyro)
+                                           session.gyro_unit, settings.gyro,
+                                           block_mean_cov(session.acc, blocks, acc_fit))
         n_orient = distinct_orientations(det.means[b0:b1] - acc_fit.model.b)
         seg = Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
                       t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,

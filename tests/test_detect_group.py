@@ -1,0 +1,94 @@
+"""Static detector (M1) and grouping into segments (method.md §1, §2)."""
+
+import numpy as np
+import pytest
+
+import imucal
+from imucal.detect import DetectSettings, detect_static, rolling_variance, runs_of_true
+from imucal.errors import ImucalError
+from imucal.synth import make_session
+
+
+def test_rolling_variance_matches_direct_windows():
+    rng = np.random.default_rng(0)
+    x = rng.normal(1000.0, 0.01, (500, 3))  # a large offset: cancellation would show here
+    w = 11
+    got = rolling_variance(x, w)
+    h = w // 2
+    for i in range(h, len(x) - h):
+        np.testing.assert_allclose(got[i], np.var(x[i - h:i + h + 1], axis=0, ddof=1),
+                                   rtol=1e-6)
+
+
+def test_runs_of_true():
+    m = np.array([1, 1, 0, 0, 1, 0, 1, 1, 1], bool)
+    assert runs_of_true(m).tolist() == [[0, 2], [4, 5], [6, 9]]
+    assert runs_of_true(np.zeros(4, bool)).shape == (0, 2)
+
+
+def test_blocks_match_the_still_poses():
+    session, truth = make_session(poses=25, seed=1)
+    det = detect_static(session.acc, session.t_acc)
+    assert len(det.blocks) == 25
+    t = session.t_acc
+    for (a, b), (s, e) in zip(det.blocks, truth.pose_times):
+        # Inside its pose, and covering most of it (the centred window trims half a window).
+        assert t[a] >= s - 1e-9 and t[b - 1] <= e + 1e-9
+        assert (t[b - 1] - t[a]) > (e - s) - 1.2
+
+
+def test_detector_statistic_is_m1():
+    session, _ = make_session(poses=12, seed=2)
+    det = detect_static(session.acc, session.t_acc, DetectSettings(window=51))
+    var = rolling_variance(session.acc, 51)
+    np.testing.assert_allclose(det.statistic, (var**2).sum(axis=1))
+    imu = detect_static(session.acc, session.t_acc, DetectSettings(window=51, statistic="imu_tk"))
+    np.testing.assert_allclose(imu.statistic, np.sqrt((var**2).sum(axis=1)))
+
+
+def test_no_initial_still_period_is_reported():
+    session, _ = make_session(poses=12, seed=3)
+    with pytest.raises(ImucalError, match="initial still"):
+        detect_static(session.acc, session.t_acc, DetectSettings(init=(1e6, 1e6 + 2)))
+
+
+def test_too_few_blocks_says_how_many():
+    session, _ = make_session(poses=5, seed=3)
+    with pytest.raises(ImucalError, match="found 5 static blocks"):
+        imucal.calibrate(session)
+
+
+def test_steady_session_gives_one_segment():
+    for seed in (11, 12, 13):
+        session, _ = make_session(poses=40, seed=seed)
+        r = imucal.calibrate(session)
+        assert len(r.segments) == 1, r.grouping.tests
+
+
+def test_change_of_parameters_gives_two_segments_split_near_the_change():
+    for seed in (21, 22):
+        session, truth = make_session(poses=40, seed=seed, change_at=0.5)
+        r = imucal.calibrate(session)
+        assert len(r.segments) == 2, r.grouping.tests
+        first, second = r.segments
+        # The split falls in the motion where the parameters changed.
+        assert first.t_end <= truth.t_change <= second.t_start
+        # Each segment recovers its own truth.
+        np.testing.assert_allclose(first.acc.model.K, truth.acc.K, rtol=3e-3)
+        np.testing.assert_allclose(second.acc.model.K, truth.acc2.K, rtol=3e-3)
+        assert r.quality.static_norm_rms_mg[1] < 0.5
+        # Samples between the two segments use the mean of their parameters (method.md §2).
+        t = session.t_acc
+        gap = (t > first.t_end) & (t < second.t_start)
+        mean_k = (first.acc.model.K + second.acc.model.K) / 2
+        mean_b = (first.acc.model.b + second.acc.model.b) / 2
+        mean_t = (first.acc.model.T + second.acc.model.T) / 2
+        expect = (session.acc[gap] - mean_b) @ (mean_t * mean_k).T
+        np.testing.assert_allclose(r.calibrated.acc[gap], expect)
+
+
+def test_single_segment_mode():
+    session, _ = make_session(poses=40, seed=21, change_at=0.5)
+    r = imucal.calibrate(session, single_segment=True)
+    assert len(r.segments) == 1
+    assert "single segment" in r.grouping.mode
