@@ -11,7 +11,7 @@ from .lcurve import lcurve_corner
 from .lm import FitReport, fit_tikhonov
 from .models import ACC_THETA0, SensorModel, acc_T
 
-DEFAULT_LAMBDAS = np.logspace(-8, 3, 45)
+DEFAULT_LAMBDAS = np.logspace(-8, 3, 34)  # three points a decade
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,7 @@ class AccSettings:
 
     lam: float | str = "auto"
     lambdas: tuple[float, ...] = tuple(DEFAULT_LAMBDAS)
-    points: str = "thesis"
+    points: str = "chunks"
     n_select: int = 99
     n_group: int = 10
 
@@ -279,14 +279,25 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
 
 def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
             ) -> tuple[LCurve, tuple[FitReport, dict[str, float]]]:
-    """Solve on the lambda grid, record (rho, eta), pick the corner (thesis ch. 5)."""
-    fits = [best_fit(pts, lam, starts) for lam in lambdas]
-    rho = np.array([f[0].residual_norm for f in fits])
-    eta = np.array([f[0].solution_norm(ACC_THETA0) for f in fits])
+    """Solve on the lambda grid, record (rho, eta), pick the corner (thesis ch. 5).
+
+    Every start is tried at the smallest lambda; each larger lambda then starts from the
+    previous solution (continuation), which follows one branch of minima along the curve and
+    costs one LM run per grid point. At the corner every start is tried again, so the
+    solution returned is the best one found for the chosen lambda.
+    """
+    lambdas = np.sort(lambdas)
+    first, _ = best_fit(pts, float(lambdas[0]), starts)
+    fits = [first]
+    for lam in lambdas[1:]:
+        fits.append(_fit(pts, float(lam), fits[-1].theta, fits[-1].start_name))
+    rho = np.array([f.residual_norm for f in fits])
+    eta = np.array([f.solution_norm(ACC_THETA0) for f in fits])
     corner, curv = lcurve_corner(lambdas, rho, eta)
     curve = LCurve(lambdas=lambdas, residual_norm=rho, solution_norm=eta,
-                   thetas=np.array([f[0].theta for f in fits]), corner=corner, curvature=curv)
-    return curve, fits[corner]
+                   thetas=np.array([f.theta for f in fits]), corner=corner, curvature=curv)
+    return curve, best_fit(pts, float(lambdas[corner]),
+                           {**starts, "continuation": fits[corner].theta})
 
 
 def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal) -> list[str]:

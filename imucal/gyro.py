@@ -8,7 +8,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from .errors import ImucalError
-from .integrate import ordered_product, rk4_step_quaternions
+from .integrate import ordered_product_soa, padded_steps, rk4_steps
 from .lm import FitReport, fit_tikhonov, sandwich_cov
 from .models import GYRO_THETA0, SensorModel, gyro_T
 from .quaternion import rotate_inverse, to_matrix
@@ -42,32 +42,31 @@ class Transitions:
         e = np.clip(np.searchsorted(t, t_start_next, side="right"), 0, len(t) - 1)
         e = np.maximum(e, s)
         self.starts, self.ends = s, e
-        n = e - s
-        self.n_steps = n
-        L = int(max(n.max(), 1)) if len(n) else 1
-        j = np.arange(L)
-        self.valid = j[None, :] < n[:, None]
-        i0 = (s[:, None] + j[None, :])[self.valid]
-        self.w0 = w_raw[i0]
-        self.w1 = w_raw[i0 + 1]
-        self.dt = t[i0 + 1] - t[i0]
-        self.shape = (len(s), L)
+        self.n_steps = e - s
+        i0, self.dt = padded_steps(t, s, e)
+        # Components as separate contiguous (K, L) arrays: the hot loop is elementwise.
+        comps = [np.ascontiguousarray(w_raw[:, i]) for i in range(3)]
+        self.w0 = [c[i0] for c in comps]
+        self.w1 = [c[i0 + 1] for c in comps]
 
     def __len__(self) -> int:
         return len(self.starts)
 
     def rotations(self, model: SensorModel) -> np.ndarray:
         """Quaternion of the body rotation over each transition under ``model`` (K, 4)."""
-        M = model.matrix
-        P = np.zeros(self.shape + (4,))
-        P[..., 0] = 1.0
-        P[self.valid] = rk4_step_quaternions((self.w0 - model.b) @ M.T, (self.w1 - model.b) @ M.T,
-                                             self.dt)
-        return ordered_product(P)
+        return ordered_product_soa(rk4_steps(_apply(model, self.w0), _apply(model, self.w1),
+                                             self.dt))
 
     def predict(self, model: SensorModel, u_prev: np.ndarray) -> np.ndarray:
         """M5: gravity of block k-1 carried into the body frame of block k, ``R_k^T u_(k-1)``."""
         return rotate_inverse(self.rotations(model), u_prev)
+
+
+def _apply(model: SensorModel, w: list[np.ndarray]) -> tuple[np.ndarray, ...]:
+    """M4 on component arrays: ``w_i = sum_j M_ij (w_raw_j - b_j)``."""
+    M, b = model.matrix, model.b
+    d = [w[j] - b[j] for j in range(3)]
+    return tuple(M[i, 0] * d[0] + M[i, 1] * d[1] + M[i, 2] * d[2] for i in range(3))
 
 
 @dataclass(frozen=True)
@@ -129,21 +128,32 @@ def static_bias(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray, how: 
 def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: np.ndarray
                 ) -> float:
     """Data-driven nominal scale for a gyroscope in raw counts: the isotropic scale s that
-    best carries each gravity direction into the next (a 1-D search, coarse grid then refine),
-    so no hand-set guess is needed."""
+    best carries each gravity direction into the next, so no hand-set guess is needed.
+
+    The angle between consecutive gravity directions is at most the angle turned, which is at
+    most ``s`` times the integral of the raw rate's norm: their ratio brackets ``s`` from
+    below. A log grid around that estimate, then a bounded 1-D refinement, finds the minimum
+    of the M5 cost; with no usable rotation the grid spans eight decades.
+    """
 
     def cost(log_s: float) -> float:
         m = SensorModel(T=np.eye(3), K=np.full(3, np.exp(log_s)), b=bias)
         r = u_meas - tr.predict(m, u_prev)
         return float(np.sum(r * r))
 
-    # Largest plausible rate span: from 1e-7 to 10 rad/s per count.
-    grid = np.linspace(np.log(1e-7), np.log(10.0), 160)
+    turned = np.radians(angle_between(u_prev, u_meas))
+    d = [0.5 * (w0 + w1) - b for w0, w1, b in zip(tr.w0, tr.w1, bias)]
+    raw_turn = np.sum(np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * tr.dt, axis=1)
+    ok = (turned > np.radians(10.0)) & (raw_turn > 0)
+    if ok.any():
+        est = float(np.median(turned[ok] / raw_turn[ok]))
+        grid = np.linspace(np.log(est / 2.0), np.log(est * 4.0), 25)
+    else:
+        grid = np.linspace(np.log(1e-7), np.log(10.0), 160)
     costs = np.array([cost(g) for g in grid])
     i = int(np.argmin(costs))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
-                          options={"xatol": 1e-10})
+    res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6})
     return float(np.exp(res.x))
 
 

@@ -41,7 +41,7 @@ class Settings:
     # accelerometer (§3)
     g: float | None = None
     lam: float | str = "auto"
-    points: str = "thesis"
+    points: str = "chunks"
     # gyroscope (§4)
     gyro_lam: float = 1e-4
     gyro_bias: str = "all"
