@@ -9,7 +9,7 @@ import numpy as np
 from .errors import ImucalError
 from .lcurve import lcurve_corner
 from .lm import FitReport, fit_tikhonov
-from .models import ACC_THETA0, SensorModel, acc_T
+from .models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T
 
 DEFAULT_LAMBDAS = np.logspace(-8, 3, 34)  # three points a decade
 
@@ -315,6 +315,11 @@ def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: No
                    "'huge sphere' escape route; record more orientations")
     if report.cost > report.cost_start * (1 + 1e-9):
         out.append("accelerometer fit ended with a higher cost than it started from")
+    weak = undetermined(report.jac, ACC_PARAM_NAMES)
+    if weak:
+        out.append(f"the still poses do not determine {', '.join(weak)} (condition number "
+                   f"{report.jac_cond:.3g}): the regularisation holds them near nominal; record "
+                   "poses in more directions")
     if np.max(np.abs(th[:3])) > 0.2:
         out.append(f"accelerometer misalignment angles {np.round(th[:3], 3).tolist()} rad are "
                    "implausibly large")
@@ -355,3 +360,16 @@ def block_mean_cov(acc: np.ndarray, blocks: np.ndarray, fit: AccFit) -> np.ndarr
     idx = np.arange(B)
     cov.reshape(B, 3, B, 3)[idx, :, idx, :] += noise
     return cov
+
+
+def undetermined(J: np.ndarray, names: tuple[str, ...], rel: float = 1e-3) -> list[str]:
+    """Parameters that the data barely constrain: the main components of the right singular
+    vectors whose singular values are below ``rel`` times the largest."""
+    _, sv, vt = np.linalg.svd(J, full_matrices=False)
+    weak: list[str] = []
+    for s_i, v in zip(sv, vt):
+        if s_i < rel * sv[0]:
+            for j in np.flatnonzero(np.abs(v) > 0.3):
+                if names[j] not in weak:
+                    weak.append(names[j])
+    return weak

@@ -229,6 +229,12 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                         "frame) are far from 1: check the gyroscope unit")
     if report.cost > report.cost_start * (1 + 1e-9):
         warnings.append("gyroscope fit ended with a higher cost than it started from")
+    w_cal = _apply(model, tr.w0)
+    per_step = np.sqrt(w_cal[0] ** 2 + w_cal[1] ** 2 + w_cal[2] ** 2) * tr.dt
+    if per_step.size and per_step.max() > np.radians(20.0):
+        warnings.append(f"rotations too fast for the gyroscope's sample rate: up to "
+                        f"{np.degrees(per_step.max()):.0f} degrees between two samples; the "
+                        "integration (M5) loses accuracy above about 20: turn more slowly")
     small = np.count_nonzero(angle < 10.0)
     if small:
         warnings.append(f"{small} of {len(angle)} rotations between still poses are under 10 "

@@ -40,8 +40,9 @@ def _mul(p: Quat, q: Quat) -> Quat:
 def rk4_steps(w0: Vec, w1: Vec, dt: np.ndarray) -> Quat:
     """``P_n`` (normalised) for steps with body rate ``w0`` at the start, ``w1`` at the end.
 
-    ``w0``, ``w1`` are tuples of three component arrays (...), ``dt`` (...). The rate at the half step is the mean of the two
-    samples (the thesis's choice), so with ``A = 1/2 (0, w)`` the stages are
+    ``w0``, ``w1`` are tuples of three component arrays (...), ``dt`` (...). The rate at the
+    half step is the mean of the two samples (the thesis's choice), so with ``A = 1/2 (0, w)``
+    the stages are
     ``k1 = A1``, ``k2 = (1 + h/2 k1) A2``, ``k3 = (1 + h/2 k2) A2``, ``k4 = (1 + h k3) A4``
     (each divided by ``q``) and ``P = 1 + h/6 (k1 + 2 k2 + 2 k3 + k4)``. Products of pure
     quaternions are written out: ``(0, u)(0, v) = (-u.v, u x v)``. A step with ``dt = 0`` is the

@@ -21,6 +21,7 @@ from .errors import ImucalError
 from .group import Grouping, GroupSettings, group_blocks
 from .gyro import GyroFit, GyroSettings, calibrate_gyroscope
 from .quality import Quality, distinct_orientations, quality_figures
+from .saturation import blocks_with, saturated_mask
 from .session import STANDARD_GRAVITY, Session
 
 
@@ -126,7 +127,18 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 
     det = detect_static(session.acc, session.t_acc, settings.detect, source=session.source)
+    det, excluded = _drop_saturated(session.acc, det)
+    if excluded:
+        warnings.append(f"excluded {excluded} static block(s) holding saturated accelerometer "
+                        "samples (flat at the sensor's limit)")
     _check_blocks(session, det, settings)
+    if session.has_gyro:
+        sat = saturated_mask(session.gyro)
+        if sat.any():
+            first = float(session.t_gyro[np.argmax(sat)])
+            warnings.append(f"the gyroscope is saturated (flat at its limit) in {int(sat.sum())} "
+                            f"samples, first at t = {first:.2f} s: rotations through them are "
+                            "under-measured; turn more slowly")
     block_times = np.column_stack([session.t_acc[det.blocks[:, 0]],
                                    session.t_acc[det.blocks[:, 1] - 1]])
 
@@ -178,6 +190,16 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
                   calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings)
+
+
+def _drop_saturated(acc: np.ndarray, det: Detection) -> tuple[Detection, int]:
+    if len(det.blocks) == 0:
+        return det, 0
+    bad = blocks_with(saturated_mask(acc), det.blocks)
+    if not bad.any():
+        return det, 0
+    keep = ~bad
+    return dataclasses.replace(det, blocks=det.blocks[keep], means=det.means[keep]), int(bad.sum())
 
 
 def _check_blocks(session: Session, det: Detection, settings: Settings) -> None:
