@@ -22,7 +22,7 @@ from .group import Grouping, GroupSettings, group_blocks
 from .gyro import GyroFit, GyroSettings, calibrate_gyroscope
 from .quality import Quality, distinct_orientations, quality_figures
 from .saturation import blocks_with, saturated_mask
-from .session import STANDARD_GRAVITY, Session
+from .session import STANDARD_GRAVITY, Session, validate
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,11 @@ def resolve_g(session: Session, g: float | None) -> tuple[float, float, str]:
 
 def calibrate(session: Session, settings: Settings | None = None, **overrides) -> Result:
     """Calibrate a session: the whole method of method.md, one stage after the other."""
-    settings = dataclasses.replace(settings or Settings(), **overrides)
+    try:
+        settings = dataclasses.replace(settings or Settings(), **overrides)
+    except TypeError as e:
+        raise ImucalError(str(e), source="settings") from None
+    validate(session)
     warnings: list[str] = list(session.notes)
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 

@@ -55,3 +55,32 @@ class Session:
     @property
     def duration(self) -> float:
         return float(self.t_acc[-1] - self.t_acc[0])
+
+
+def validate(session: Session) -> None:
+    """Refuse a session the method cannot use, in one line naming the field.
+
+    The loaders check files as they read them; this guards sessions built in code.
+    """
+    from .errors import ImucalError
+
+    def check(x: np.ndarray | None, t: np.ndarray | None, name: str) -> None:
+        if x is None:
+            return
+        x = np.asarray(x)
+        if x.ndim != 2 or x.shape[1] != 3:
+            raise ImucalError(f"expected an (N, 3) array, got shape {x.shape}",
+                              source=session.source, field=name)
+        if t is None or np.asarray(t).shape != (len(x),):
+            raise ImucalError(f"expected one timestamp per sample ({len(x)})",
+                              source=session.source, field=f"{name} time")
+        if not np.issubdtype(x.dtype, np.number) or not np.all(np.isfinite(x)):
+            raise ImucalError("samples must be finite numbers (NaN or Inf found)",
+                              source=session.source, field=name)
+        t = np.asarray(t, dtype=float)
+        if len(t) < 2 or not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
+            raise ImucalError("timestamps must be finite and strictly increasing",
+                              source=session.source, field=f"{name} time")
+
+    check(session.acc, session.t_acc, "accelerometer")
+    check(session.gyro, session.t_gyro, "gyroscope")
