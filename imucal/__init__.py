@@ -6,21 +6,44 @@ The core is pure computation (it never imports rerun). Public API::
     result = imucal.calibrate(session)            # -> Result
     imucal.save_calibration(result, "calib.json")
     calibrated = imucal.load_calibration("calib.json").apply(session)
+
+Names are imported on first use (PEP 562), so ``import imucal`` costs nothing until then and
+``imucal --help`` stays fast.
 """
 
-from .calibration import CalibratedSignals, Calibration
-from .calibration_file import load_calibration, save_calibration
-from .errors import ImucalError
-from .pipeline import Result, Settings, calibrate
-from .session import Session
+from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING, Any
 
-def load_session(*args, **kwargs) -> Session:
-    """Load a recording (see :func:`imucal.load.load_session`)."""
-    from .load import load_session as _load
-
-    return _load(*args, **kwargs)
-
+_WHERE = {
+    "CalibratedSignals": "calibration",
+    "Calibration": "calibration",
+    "load_calibration": "calibration_file",
+    "save_calibration": "calibration_file",
+    "ImucalError": "errors",
+    "Result": "pipeline",
+    "Settings": "pipeline",
+    "calibrate": "pipeline",
+    "Session": "session",
+    "load_session": "load",
+}
 
 __all__ = ["CalibratedSignals", "Calibration", "ImucalError", "Result", "Session", "Settings",
            "calibrate", "load_calibration", "load_session", "save_calibration"]
+
+if TYPE_CHECKING:
+    from .calibration import CalibratedSignals, Calibration
+    from .calibration_file import load_calibration, save_calibration
+    from .errors import ImucalError
+    from .load import load_session
+    from .pipeline import Result, Settings, calibrate
+    from .session import Session
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -352,7 +352,8 @@ def _check_file(path: Path) -> None:
     try:
         st = path.stat()
     except FileNotFoundError:
-        raise ImucalError(f"file not found: {path}", source=name) from None
+        where = "" if str(path) == name else f" (looked at {path})"
+        raise ImucalError(f"file not found{where}", source=name) from None
     except OSError as exc:
         raise ImucalError(f"cannot access the file ({exc.strerror})", source=name) from None
     if path.is_dir():
