@@ -23,7 +23,7 @@ _WHERE = {
     "save_calibration": "calibration_file",
     "ImucalError": "errors",
     "Result": "pipeline",
-    "Settings": "pipeline",
+    "Settings": "settings",
     "calibrate": "pipeline",
     "Session": "session",
     "load_session": "load",
@@ -37,8 +37,9 @@ if TYPE_CHECKING:
     from .calibration_file import load_calibration, save_calibration
     from .errors import ImucalError
     from .load import load_session
-    from .pipeline import Result, Settings, calibrate
+    from .pipeline import Result, calibrate
     from .session import Session
+    from .settings import Settings
 
 
 def __getattr__(name: str) -> Any:

@@ -12,7 +12,6 @@ interrupted (Ctrl-C).
 
 from __future__ import annotations
 
-import ast
 import contextlib
 import math
 import os
@@ -34,24 +33,11 @@ SETTINGS = ("window", "min_len", "k", "init", "statistic", "single_segment", "de
 
 
 def _settings_defaults() -> dict[str, Any]:
-    """The defaults of :class:`imucal.pipeline.Settings`, for the options and their help.
-
-    Read from pipeline.py's source (literal defaults of the dataclass) so that ``--help`` needs
-    no numpy; anything unexpected falls back to importing the class itself.
-    """
-    try:
-        tree = ast.parse(Path(__file__).with_name("pipeline.py").read_text(encoding="utf-8"))
-        cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Settings")
-        found = {node.target.id: ast.literal_eval(node.value) for node in cls.body
-                 if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
-                 and node.value is not None}
-        if set(found) >= set(SETTINGS):
-            return found
-    except (OSError, UnicodeDecodeError, SyntaxError, ValueError, TypeError, StopIteration):
-        pass
+    """The defaults of :class:`imucal.settings.Settings` (a module free of numpy, so ``--help``
+    stays fast)."""
     import dataclasses
 
-    from .pipeline import Settings
+    from .settings import Settings
 
     return dataclasses.asdict(Settings())
 

@@ -9,70 +9,20 @@ import numpy as np
 
 from .accel import (
     AccFit,
-    AccSettings,
     block_mean_cov,
     calibrate_accelerometer,
     make_nominal,
     select_points,
 )
 from .calibration import CalibratedSignals, Calibration, SegmentModels
-from .detect import Detection, DetectSettings, detect_static
+from .detect import Detection, detect_static
 from .errors import ImucalError
-from .group import Grouping, GroupSettings, group_blocks
-from .gyro import GyroFit, GyroSettings, calibrate_gyroscope
+from .group import Grouping, group_blocks
+from .gyro import GyroFit, calibrate_gyroscope
 from .quality import Quality, distinct_orientations, quality_figures
 from .saturation import blocks_with, saturated_mask
 from .session import STANDARD_GRAVITY, Session, validate
-
-
-@dataclass(frozen=True)
-class Settings:
-    """Every setting of method.md, flat, with the thesis's defaults (see each module)."""
-
-    # detector (§1)
-    window: int | None = None
-    min_len: int | None = None
-    k: float = 2.0
-    init: tuple[float, float] = (0.5, 3.0)
-    statistic: str = "thesis"
-    # grouping (§2)
-    single_segment: bool = False
-    delta: float = 0.01
-    min_blocks: int = 12
-    # accelerometer (§3)
-    g: float | None = None
-    lam: float | str = "auto"
-    points: str = "chunks"
-    # gyroscope (§4)
-    gyro_lam: float = 1e-4
-    gyro_bias: str = "all"
-    optimise_gyro_bias: bool = False
-    gyro_nominal_scale: float | None = None
-
-    def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["init"] = list(self.init)
-        return d
-
-    @property
-    def detect(self) -> DetectSettings:
-        return DetectSettings(window=self.window, min_len=self.min_len, k=self.k,
-                              init=tuple(self.init), statistic=self.statistic)
-
-    @property
-    def group(self) -> GroupSettings:
-        return GroupSettings(single_segment=self.single_segment, delta=self.delta,
-                             min_blocks=self.min_blocks)
-
-    @property
-    def acc(self) -> AccSettings:
-        return AccSettings(lam=self.lam, points=self.points)
-
-    @property
-    def gyro(self) -> GyroSettings:
-        return GyroSettings(lam=self.gyro_lam, bias=self.gyro_bias,
-                            optimise_bias=self.optimise_gyro_bias,
-                            nominal_scale=self.gyro_nominal_scale)
+from .settings import Settings
 
 
 @dataclass(frozen=True)
