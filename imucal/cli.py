@@ -44,7 +44,8 @@ def _settings_defaults() -> dict[str, Any]:
 
 DEFAULTS: dict[str, Any] = _settings_defaults()
 LOAD_DEFAULTS: dict[str, Any] = {"gyro_path": None, "rate": None, "acc_unit": "auto",
-                                 "gyro_unit": "auto", "columns": None, "time_unit": "s"}
+                                 "gyro_unit": "auto", "columns": None, "time_unit": "s",
+                                 "acc_only": False}
 ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 
 app = typer.Typer(
@@ -189,6 +190,9 @@ TimeUnitOpt = Annotated[str, typer.Option(
     "--time-unit", metavar="s|ms|us|ns", rich_help_panel=_IN,
     callback=_choice(_TIME_UNITS, "s, ms, us or ns", allow_auto=False),
     help="Unit of the time column.")]
+AccOnlyOpt = Annotated[bool, typer.Option(
+    "--acc-only", rich_help_panel=_IN,
+    help="The file holds an accelerometer and no gyroscope: calibrate the accelerometer alone.")]
 VerboseOpt = Annotated[bool, typer.Option(
     "--verbose", "-v", help="Show progress on stderr (shown anyway when stderr is a terminal).")]
 
@@ -272,9 +276,10 @@ def _settings(*, window, min_len, k, init, init_start, init_end, statistic, sing
             "optimise_gyro_bias": optimise_gyro_bias, "gyro_nominal_scale": gyro_sensitivity}
 
 
-def _load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit) -> dict[str, Any]:
+def _load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit, acc_only=False
+                 ) -> dict[str, Any]:
     return {"gyro_path": gyro, "rate": rate, "acc_unit": acc_unit, "gyro_unit": gyro_unit,
-            "columns": parse_columns(columns), "time_unit": time_unit}
+            "columns": parse_columns(columns), "time_unit": time_unit, "acc_only": acc_only}
 
 
 def _usage(message: str, hint: str) -> typer.BadParameter:
@@ -379,6 +384,7 @@ def calibrate(
     gyro_unit: GyroUnitOpt = "auto",
     columns: ColumnsOpt = None,
     time_unit: TimeUnitOpt = "s",
+    acc_only: AccOnlyOpt = False,
     window: WindowOpt = DEFAULTS["window"],
     min_len: MinLenOpt = DEFAULTS["min_len"],
     k: KOpt = DEFAULTS["k"],
@@ -406,7 +412,7 @@ def calibrate(
                          optimise_gyro_bias=optimise_gyro_bias,
                          gyro_sensitivity=gyro_sensitivity)
     load_kw = _load_kwargs(gyro=gyro, rate=rate, acc_unit=acc_unit, gyro_unit=gyro_unit,
-                           columns=columns, time_unit=time_unit)
+                           columns=columns, time_unit=time_unit, acc_only=acc_only)
     inputs = [session, gyro]
     if calibrated is not None:
         from .export import output_format
@@ -531,6 +537,7 @@ def apply(
     gyro_unit: GyroUnitOpt = "auto",
     columns: ColumnsOpt = None,
     time_unit: TimeUnitOpt = "s",
+    acc_only: AccOnlyOpt = False,
     verbose: VerboseOpt = False,
 ) -> None:
     """Apply a calibration file to a recording and write the calibrated signals.
@@ -550,7 +557,7 @@ def apply(
     with progress.stage(f"reading {calibration.name}"):
         cal = imucal.load_calibration(calibration)
     load_kw = _load_kwargs(gyro=gyro, rate=rate, acc_unit=acc_unit, gyro_unit=gyro_unit,
-                           columns=columns, time_unit=time_unit)
+                           columns=columns, time_unit=time_unit, acc_only=acc_only)
     with progress.stage(f"loading {session.name}"):
         sess = imucal.load_session(session, **load_kw)
     with progress.stage("applying"):
@@ -671,6 +678,7 @@ def view(
     gyro_unit: GyroUnitOpt = "auto",
     columns: ColumnsOpt = None,
     time_unit: TimeUnitOpt = "s",
+    acc_only: AccOnlyOpt = False,
     window: WindowOpt = DEFAULTS["window"],
     min_len: MinLenOpt = DEFAULTS["min_len"],
     k: KOpt = DEFAULTS["k"],
@@ -701,7 +709,7 @@ def view(
                          optimise_gyro_bias=optimise_gyro_bias,
                          gyro_sensitivity=gyro_sensitivity)
     load_kw = _load_kwargs(gyro=gyro, rate=rate, acc_unit=acc_unit, gyro_unit=gyro_unit,
-                           columns=columns, time_unit=time_unit)
+                           columns=columns, time_unit=time_unit, acc_only=acc_only)
     load_options = {key: v for key, v in load_kw.items() if v != LOAD_DEFAULTS[key]}
     overrides = {key: v for key, v in settings.items() if v != DEFAULTS[key]}
     if not target.exists():

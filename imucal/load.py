@@ -218,6 +218,7 @@ def load_session(
     gyro_unit: str = "auto",
     columns: Mapping[str, str | int] | None = None,
     time_unit: str = "s",
+    acc_only: bool = False,
 ) -> Session:
     """Load an accelerometer + gyroscope recording from ``path`` (and ``gyro_path``).
 
@@ -225,7 +226,10 @@ def load_session(
     of a time column ("s", "ms", "us", "ns"). ``acc_unit`` is "auto", "g", "m/s^2" or "counts";
     ``gyro_unit`` is "auto", "rad/s", "deg/s" or "counts" (deg/s is converted to rad/s).
     ``columns`` maps roles {"t","ax","ay","az","gx","gy","gz"} to column names, or to 0-based
-    positions for a file without a header. Raises :class:`ImucalError` for any bad input.
+    positions for a file without a header. A file with an accelerometer and no gyroscope is
+    refused unless ``acc_only`` says an accelerometer-only session is meant (three columns are
+    as often one half of a two-file session); ``acc_only`` also drops a gyroscope that is there.
+    Raises :class:`ImucalError` for any bad input.
     """
     paths = [Path(path)] + ([Path(gyro_path)] if gyro_path is not None else [])
     source = " + ".join(_name(p) for p in paths)
@@ -241,8 +245,13 @@ def load_session(
 
     if gyro_path is None:
         parts = _extract(_read_file(paths[0]), ("acc", "gyro"), opts)
-        if "gyro" not in parts:
-            opts.notes.append(f"no gyroscope in {_name(paths[0])}: accelerometer only")
+        if "gyro" not in parts and not acc_only:
+            raise ImucalError("found an accelerometer and no gyroscope; give the gyroscope's "
+                              "file with --gyro FILE, or --acc-only to calibrate the "
+                              "accelerometer alone", source=source, field="columns")
+        if acc_only:
+            parts.pop("gyro", None)
+            opts.notes.append(f"accelerometer only (--acc-only): {_name(paths[0])}")
     else:
         parts = _extract(_read_file(paths[0]), ("acc",), opts)
         parts.update(_extract(_read_file(paths[1]), ("gyro",), opts))

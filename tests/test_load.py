@@ -103,7 +103,9 @@ def test_mat5_accelerometer_only_variable(tmp_path):
     acc, _, t = make_signals()
     path = tmp_path / "acc_only.mat"
     scipy.io.savemat(path, {"a": acc, "t": t})
-    s = load_session(path)
+    with pytest.raises(ImucalError, match="no gyroscope.*--acc-only"):
+        load_session(path)
+    s = load_session(path, acc_only=True)
     assert_session(s, acc, None, t)
     assert any("accelerometer only" in n for n in s.notes)
 
@@ -340,10 +342,12 @@ def test_units_explicit_and_guessed(tmp_path):
 def test_accelerometer_only_file(tmp_path):
     acc, _, t = make_signals()
     path = write_csv(tmp_path / "acc.csv", None, np.hstack([t[:, None], acc]))
-    s = load_session(path)
+    with pytest.raises(ImucalError, match="acc.csv.*no gyroscope.*--gyro FILE"):
+        load_session(path)
+    s = load_session(path, acc_only=True)
     assert_session(s, acc, None, t)
     assert s.gyro_unit is None and not s.has_gyro
-    assert "no gyroscope in acc.csv: accelerometer only" in s.notes
+    assert "accelerometer only (--acc-only): acc.csv" in s.notes
 
 
 def test_short_nan_runs_are_bridged_and_ends_dropped(tmp_path):
