@@ -11,6 +11,7 @@ the field and what was expected; exceptions of the parsing libraries never escap
 from __future__ import annotations
 
 import hashlib
+import io
 import math
 import os
 import re
@@ -436,7 +437,14 @@ def _as_matrix(value: object) -> np.ndarray | None:
 def _read_mat5(path: Path) -> _Variables:
     from scipy.io import loadmat
 
-    raw = loadmat(str(path))
+    from .mat5_check import CorruptMat, check_mat5
+
+    data = path.read_bytes()
+    try:
+        check_mat5(data)  # scipy crashes the process on some corrupt files
+    except CorruptMat as e:
+        raise ImucalError(f"corrupt MATLAB v5 file: {e}", source=_name(path)) from None
+    raw = loadmat(io.BytesIO(data))
     found = {}
     for name, value in raw.items():
         if name.startswith("__"):

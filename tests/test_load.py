@@ -522,7 +522,7 @@ ERROR_CASES = {
     "mat no matrix": (_mat({"name": "hello"}), {}, "no numeric matrix"),
     "mat two matrices": (_mat({"p": np.ones((10, 6)), "q": np.ones((10, 6))}), {}, "several"),
     "mat bad shape": (_mat({"acc": np.ones((10, 5)), "gyro": np.ones((10, 3))}), {}, "shape"),
-    "mat corrupt": (_corrupt(b"MATLAB 5.0 MAT-file, corrupted".ljust(128)), {}, "cannot read"),
+    "mat corrupt": (_corrupt(b"MATLAB 5.0 MAT-file, corrupted".ljust(128)), {}, "corrupt"),
     "hdf5 corrupt": (_corrupt(b"\x89HDF\r\n\x1a\n"), {}, "cannot read"),
     "parquet corrupt": (_corrupt(b"PAR1"), {}, "cannot read"),
     "too large": (_huge, {}, "2 GiB"),

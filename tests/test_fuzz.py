@@ -1,0 +1,79 @@
+"""Fuzz the file sniffer and the loaders with mutated real files: whatever the bytes, loading
+either succeeds or raises the product's own error (a few thousand cases, seeded)."""
+
+import io
+
+import h5py
+import numpy as np
+import polars as pl
+import pytest
+import scipy.io
+
+import imucal
+from imucal.load import load_session
+
+
+def _corpus(shared, tmp_path) -> dict[str, bytes]:
+    rng = np.random.default_rng(0)
+    m = np.column_stack([np.arange(300) / 100.0, rng.normal(0, 0.01, (300, 3)) + [0, 0, 1],
+                         rng.normal(0, 0.01, (300, 3))])
+    files: dict[str, bytes] = {}
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, {"acc": m[:, 1:4], "gyro": m[:, 4:], "t": m[:, 0]})
+    files["v5.mat"] = buf.getvalue()
+    p = tmp_path / "v73.mat"
+    with h5py.File(p, "w") as f:
+        f["acc"] = m[:, 1:4].T
+        f["gyro"] = m[:, 4:].T
+        f["t"] = m[:, :1].T
+    files["v73.mat"] = p.read_bytes()
+    df = pl.DataFrame({"t": m[:, 0], "ax": m[:, 1], "ay": m[:, 2], "az": m[:, 3],
+                       "gx": m[:, 4], "gy": m[:, 5], "gz": m[:, 6]})
+    files["s.csv"] = df.write_csv().encode()
+    buf = io.BytesIO()
+    df.write_parquet(buf)
+    files["s.parquet"] = buf.getvalue()
+    if shared is not None:
+        for rel in ("mikoff_mpu9150/imu0.log", "imu_tk_xsens/xsens_acc.mat",
+                    "imucal_ferraris/example_ferraris_session.csv"):
+            lines = (shared / rel).read_bytes().splitlines(keepends=True)
+            files[rel.replace("/", "_")] = b"".join(lines[:300])
+    return files
+
+
+def _mutate(data: bytes, rng: np.random.Generator) -> bytes:
+    b = bytearray(data)
+    for _ in range(int(rng.integers(1, 6))):
+        op = rng.integers(0, 5)
+        if not b:
+            break
+        i = int(rng.integers(0, len(b)))
+        if op == 0:
+            b[i] = int(rng.integers(0, 256))  # flip a byte
+        elif op == 1:
+            del b[i:i + int(rng.integers(1, 64))]  # drop a run
+        elif op == 2:
+            b[i:i] = bytes(rng.integers(0, 256, int(rng.integers(1, 32)), dtype=np.uint8))
+        elif op == 3:
+            b = b[:i]  # truncate
+        else:
+            b[i:i] = rng.choice([b",", b"\n", b" ", b"nan", b"-", b"e", b"\t", b"\x00"])
+    return bytes(b)
+
+
+def test_mutated_files_raise_only_imucal_errors(tmp_path):
+    shared = pytest.importorskip("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data"
+    files = _corpus(shared if shared.is_dir() else None, tmp_path)
+    rng = np.random.default_rng(12345)
+    n_ok = n_err = 0
+    target = tmp_path / "fuzz.bin"
+    for _ in range(2500):
+        name = list(files)[int(rng.integers(0, len(files)))]
+        target.write_bytes(_mutate(files[name], rng))
+        try:
+            load_session(target, rate=100.0)
+            n_ok += 1
+        except imucal.ImucalError as e:
+            assert "\n" not in str(e) and "fuzz.bin" in str(e), str(e)
+            n_err += 1
+    assert n_ok + n_err == 2500 and n_err > 100
