@@ -2,11 +2,11 @@
 either succeeds or raises the product's own error (a few thousand cases, seeded)."""
 
 import io
+from pathlib import Path
 
 import h5py
 import numpy as np
 import polars as pl
-import pytest
 import scipy.io
 
 import imucal
@@ -62,7 +62,7 @@ def _mutate(data: bytes, rng: np.random.Generator) -> bytes:
 
 
 def test_mutated_files_raise_only_imucal_errors(tmp_path):
-    shared = pytest.importorskip("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data"
+    shared = Path(__file__).resolve().parents[2] / "shared" / "data"
     files = _corpus(shared if shared.is_dir() else None, tmp_path)
     rng = np.random.default_rng(12345)
     n_ok = n_err = 0
