@@ -1,0 +1,403 @@
+"""The recording (viewer/): read back with rerun.chunk.RrdReader, headless, no viewer needed.
+
+The screenshot tests of the native and web viewers are in test_viewer_screens.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import imucal
+from imucal.models import acc_theta, gyro_theta
+from imucal.session import Session
+from imucal.synth import make_session
+from viewer import paths as P
+from viewer import readback as rb
+from viewer.app import is_rrd, main, view, web_command, web_url
+from viewer.decimate import envelope
+from viewer.recording import DECIMATE_ABOVE, ENVELOPE_ROWS, save_recording, summary_markdown
+
+RERUN = Path(sys.executable).parent / "rerun"
+
+
+def _record(result, path: Path) -> SimpleNamespace:
+    rows = save_recording(result, path)
+    return SimpleNamespace(result=result, path=path, rows=rows)
+
+
+@pytest.fixture(scope="module", params=["sample_data", "synthetic"])
+def run(request, tmp_path_factory, sample_session_path) -> SimpleNamespace:
+    """sample_data/session.mat through the loader, and a synthetic session whose gyroscope
+    runs at another rate than its accelerometer."""
+    if request.param == "sample_data":
+        session = imucal.load_session(sample_session_path)
+    else:
+        session, _ = make_session(poses=36, seed=7, gyro_rate=70.0)
+    result = imucal.calibrate(session)
+    return _record(result, tmp_path_factory.mktemp("rec") / "run.rrd")
+
+
+def _still_transitions(result) -> int:
+    return sum(s.blocks[1] - s.blocks[0] - 1 for s in result.segments)
+
+
+def test_every_entity_with_the_rows_logged(run):
+    r = run.result
+    s = r.session
+    n_blocks = len(r.block_times)
+    lc = r.whole.lcurve
+    acc_trace = len(r.segments[0].acc.report.trace_cost)
+    gyro_trace = len(r.segments[0].gyro.report.trace_cost)
+    k = _still_transitions(r)
+    expected = {
+        P.ACC_MAGNITUDE: len(s.t_acc), P.ACC_RAW: len(s.t_acc), P.ACC_CALIBRATED: len(s.t_acc),
+        P.GYRO_MAGNITUDE: len(s.t_gyro), P.GYRO_RAW: len(s.t_gyro),
+        P.GYRO_CALIBRATED: len(s.t_gyro),
+        P.DETECTOR_STATISTIC: len(s.t_acc), P.DETECTOR_THRESHOLD: 2,
+        P.DETECTOR_BLOCKS: 2 * n_blocks, P.DETECTOR_SEGMENTS: 2 * len(r.segments),
+        P.BLOCK_ERROR_BEFORE: n_blocks, P.BLOCK_ERROR_AFTER: n_blocks,
+        P.GRAVITY_MEASURED: n_blocks, P.GRAVITY_PREVIOUS: k, P.GRAVITY_PREDICTED_BEFORE: k,
+        P.GRAVITY_PREDICTED_AFTER: k, P.GRAVITY_ANGLE_BEFORE: k, P.GRAVITY_ANGLE_AFTER: k,
+        P.LAMBDA_LOG10: len(lc.lambdas), P.LAMBDA_STATIC_RMS: len(lc.lambdas),
+        P.LAMBDA_STATIC_MAX: len(lc.lambdas), P.LAMBDA_RESIDUAL: len(lc.lambdas),
+        P.LAMBDA_SOLUTION: len(lc.lambdas), P.LAMBDA_MISALIGNMENT: len(lc.lambdas),
+        P.LAMBDA_SCALE: len(lc.lambdas), P.LAMBDA_BIAS: len(lc.lambdas), P.LAMBDA_CHOSEN: 1,
+    }
+    for what in ("log10_cost", "misalignment", "scale", "bias"):
+        expected[P.iteration("segment_0", "accelerometer", what)] = acc_trace
+        expected[P.iteration("segment_0", "gyroscope", what)] = gyro_trace
+    in_file = rb.entities(run.path)
+    for path, n in expected.items():
+        assert in_file.get(path) == n, path
+    # What log_result reports having sent is what the file holds, entity by entity.
+    assert {p: n for p, n in in_file.items() if n} == run.rows
+    for static in (P.SUMMARY, P.INFO, P.QUALITY, P.calibration(0, "accelerometer"),
+                   P.calibration(0, "gyroscope"), P.LCURVE_POINTS, P.LCURVE_LINE,
+                   P.LCURVE_CORNER, P.GRAVITY_AXES):
+        assert static in in_file, static
+
+
+def test_signals_are_the_sessions_own(run):
+    r, s = run.result, run.result.session
+    t, mag = rb.scalars(run.path, P.ACC_MAGNITUDE)
+    np.testing.assert_allclose(t, s.t_acc, atol=2e-9, rtol=0)
+    np.testing.assert_array_equal(mag[:, 1], r.calibrated.acc_norm)
+    np.testing.assert_allclose(mag[:, 0], np.linalg.norm(s.acc, axis=1), rtol=1e-12)  # in g
+    t, w = rb.scalars(run.path, P.GYRO_MAGNITUDE)
+    np.testing.assert_allclose(t, s.t_gyro, atol=2e-9, rtol=0)
+    np.testing.assert_array_equal(w[:, 1], r.calibrated.gyro_norm)
+    t, axes = rb.scalars(run.path, P.ACC_CALIBRATED)  # short: not decimated
+    np.testing.assert_array_equal(axes, r.calibrated.acc)
+    t, stat = rb.scalars(run.path, P.DETECTOR_STATISTIC)
+    np.testing.assert_allclose(stat, np.log10(r.detection.statistic), rtol=1e-12)
+    _, thr = rb.scalars(run.path, P.DETECTOR_THRESHOLD)
+    np.testing.assert_allclose(thr, np.log10(r.detection.threshold))
+
+
+def test_calibrated_still_magnitude_within_1_mg_of_g(run):
+    """From the file alone: the still blocks' lanes and the calibrated magnitude."""
+    t_state, states = rb.column(run.path, P.DETECTOR_BLOCKS, "StateChange:state")
+    starts = t_state[[s == ["still"] for s in states]]
+    ends = t_state[[s == [""] for s in states]]
+    assert len(starts) == len(ends) == len(run.result.block_times)
+    t, mag = rb.scalars(run.path, P.ACC_MAGNITUDE)
+    g = rb.values(run.path, P.INFO)["g"]
+    errors = []
+    for a, b in zip(starts, ends):
+        inside = (t >= a) & (t <= b)
+        errors.append((mag[inside, 1].mean() / g - 1) * 1e3)
+    assert np.max(np.abs(errors)) < 1.0, errors
+    # and the raw still magnitude is visibly off (the sample is miscalibrated on purpose)
+    raw = [(mag[(t >= a) & (t <= b), 0].mean() / g - 1) * 1e3 for a, b in zip(starts, ends)]
+    assert np.sqrt(np.mean(np.square(raw))) > 5.0
+
+
+def test_lcurve_corner_is_the_chosen_lambda(run, tmp_path):
+    r = run.result
+    imucal.save_calibration(r, tmp_path / "calib.json")
+    saved = json.loads((tmp_path / "calib.json").read_text())["lambda"]
+    corner = rb.values(run.path, P.LCURVE_CORNER)
+    assert corner["lambda"] == r.whole.lam == saved
+    assert rb.values(run.path, P.INFO)["lambda"] == saved
+    lc = r.whole.lcurve
+    assert corner["index"] == lc.corner
+    xy = corner["Points2D:positions"]
+    np.testing.assert_allclose(xy, [np.log10(lc.residual_norm[lc.corner]),
+                                    -np.log10(lc.solution_norm[lc.corner])], rtol=1e-6)
+    points = rb.values(run.path, P.LCURVE_POINTS)
+    np.testing.assert_array_equal(points["lambda"], lc.lambdas)
+    assert len(points["Points2D:positions"]) == len(points["Points2D:labels"]) == len(lc.lambdas)
+    assert any(lab.startswith("λ=") for lab in points["Points2D:labels"])
+
+
+def test_lambda_sweep_agrees_with_the_calibration(run):
+    r = run.result
+    lc = r.whole.lcurve
+    idx, rms = rb.scalars(run.path, P.LAMBDA_STATIC_RMS, timeline=P.LAMBDA)
+    np.testing.assert_array_equal(idx, np.arange(len(lc.lambdas)))
+    # At the corner the sweep's parameters are the calibration's: same block errors, same K.
+    expected = np.sqrt(np.mean(np.square(r.quality.block_norm_error_mg)))
+    assert rms[lc.corner] == pytest.approx(expected, rel=1e-6, abs=1e-9)
+    chosen_idx, chosen = rb.scalars(run.path, P.LAMBDA_CHOSEN, timeline=P.LAMBDA)
+    assert list(chosen_idx) == [lc.corner] and chosen[0] == rms[lc.corner]
+    _, scale = rb.scalars(run.path, P.LAMBDA_SCALE, timeline=P.LAMBDA)
+    np.testing.assert_allclose(scale[lc.corner], r.whole.model.K, rtol=1e-12)
+    _, lam = rb.scalars(run.path, P.LAMBDA_LOG10, timeline=P.LAMBDA)
+    np.testing.assert_allclose(lam, np.log10(lc.lambdas))
+
+
+def test_iteration_traces_end_at_the_solution(run):
+    r = run.result
+    acc, gyro = r.segments[0].acc, r.segments[0].gyro
+    i, cost = rb.scalars(run.path, P.iteration("segment_0", "accelerometer", "log10_cost"),
+                         timeline=P.ITERATION)
+    np.testing.assert_array_equal(i, np.arange(len(acc.report.trace_cost)))
+    np.testing.assert_allclose(cost, np.log10(acc.report.trace_cost))
+    assert cost[-1] == pytest.approx(np.log10(acc.report.cost), abs=1e-9)
+    _, scale = rb.scalars(run.path, P.iteration("segment_0", "accelerometer", "scale"),
+                          timeline=P.ITERATION)
+    np.testing.assert_allclose(scale[-1], acc.model.K, rtol=1e-9)
+    _, gscale = rb.scalars(run.path, P.iteration("segment_0", "gyroscope", "scale"),
+                           timeline=P.ITERATION)
+    np.testing.assert_allclose(gscale[-1], gyro.model.K, rtol=1e-9)
+    _, gmis = rb.scalars(run.path, P.iteration("segment_0", "gyroscope", "misalignment"),
+                         timeline=P.ITERATION)
+    np.testing.assert_allclose(gmis[-1], gyro_theta(gyro.model)[:6], atol=1e-12)
+
+
+def test_parameters_and_quality_as_plain_values(run):
+    r = run.result
+    seg = r.segments[0]
+    acc = rb.values(run.path, P.calibration(0, "accelerometer"))
+    np.testing.assert_array_equal(np.reshape(acc["T"], (3, 3)), seg.acc.model.T)
+    np.testing.assert_array_equal(acc["K"], seg.acc.model.K)
+    np.testing.assert_array_equal(acc["b"], seg.acc.model.b)
+    np.testing.assert_array_equal(acc["params"], acc_theta(seg.acc.model))
+    np.testing.assert_array_equal(acc["std"], seg.acc.std)
+    assert acc["param_names"][3] == "s_x" and acc["lambda"] == seg.acc.lam
+    gyro = rb.values(run.path, P.calibration(0, "gyroscope"))
+    np.testing.assert_array_equal(np.reshape(gyro["T"], (3, 3)), seg.gyro.model.T)
+    np.testing.assert_array_equal(gyro["b"], seg.gyro.model.b)
+    q = rb.values(run.path, P.QUALITY)
+    assert q["static_norm_rms_mg_after"] == r.quality.static_norm_rms_mg[1]
+    assert q["static_norm_rms_mg_before"] == r.quality.static_norm_rms_mg[0]
+    assert q["gravity_angle_rms_deg_after"] == r.quality.gravity_angle_rms_deg[1]
+    np.testing.assert_array_equal(q["block_norm_error_mg"], r.quality.block_norm_error_mg)
+    info = rb.values(run.path, P.INFO)
+    assert info["n_warnings"] == len(r.warnings)
+    if r.warnings:
+        assert info["warnings"] == r.warnings
+
+
+def test_summary_is_a_markdown_table(run):
+    r = run.result
+    doc = rb.values(run.path, P.SUMMARY)
+    text = doc["TextDocument:text"]
+    assert text == summary_markdown(r)
+    assert doc["TextDocument:media_type"] == "text/markdown"
+    assert "| s_x (g/g) |" in text and "| b_z (rad/s) |" in text
+    assert f"{r.quality.static_norm_rms_mg[1]:.4g}" in text
+    for w in r.warnings:
+        assert w in text
+
+
+def test_gravity_arrows_follow_the_blocks(run):
+    r = run.result
+    fit = r.segments[0].gyro
+    def unit(v):
+        v = np.asarray(v, float).reshape(-1, 3)
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    t, measured = rb.column(run.path, P.GRAVITY_MEASURED, "Arrows3D:vectors")
+    np.testing.assert_allclose(t, r.block_times[:, 0], atol=2e-9)
+    np.testing.assert_allclose(unit(measured), np.vstack([fit.u_prev[:1], fit.u_meas]),
+                               atol=1e-6)  # float32 in the file
+    t, after = rb.column(run.path, P.GRAVITY_PREDICTED_AFTER, "Arrows3D:vectors")
+    np.testing.assert_allclose(t, r.block_times[1:, 0], atol=2e-9)
+    np.testing.assert_allclose(unit(after), fit.u_pred_after, atol=1e-6)
+    _, before = rb.column(run.path, P.GRAVITY_PREDICTED_BEFORE, "Arrows3D:vectors")
+    np.testing.assert_allclose(unit(before), fit.u_pred_before, atol=1e-6)
+    _, angle = rb.scalars(run.path, P.GRAVITY_ANGLE_AFTER)
+    np.testing.assert_allclose(angle, fit.angle_after)
+    _, before = rb.scalars(run.path, P.GRAVITY_ANGLE_BEFORE)
+    assert np.sqrt(np.mean(before**2)) > 10 * np.sqrt(np.mean(angle**2))
+
+
+def test_blueprint_is_stored_with_every_kind_of_view(run):
+    views = rb.blueprint_views(run.path)
+    classes = {c for c, _ in views}
+    assert {"TimeSeries", "StateTimeline", "3D", "2D", "TextDocument"} <= classes
+    names = [n for _, n in views]
+    assert any("lambda" in n for n in names) and any("iteration" in n for n in names)
+    assert rb.blueprint_containers(run.path) == sorted(
+        ["Overview", "Signals", "Gravity", "L-curve", "Optimiser"])
+
+
+@pytest.mark.skipif(not RERUN.exists(), reason="the rerun executable is not in the venv")
+def test_rrd_verify(run):
+    out = subprocess.run([str(RERUN), "rrd", "verify", str(run.path)], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+
+
+def test_envelope_keeps_every_peak():
+    rng = np.random.default_rng(1)
+    n = 1_000_003
+    t = np.arange(n) / 1000.0
+    x = rng.normal(size=(n, 3))
+    x[123_457, 1] = 50.0
+    x[999_999, 2] = -60.0
+    te, xe = envelope(t, x, 10_000)
+    assert len(te) == len(xe) <= 10_000
+    np.testing.assert_array_equal(xe.max(axis=0), x.max(axis=0))
+    np.testing.assert_array_equal(xe.min(axis=0), x.min(axis=0))
+    assert np.all(np.diff(te) >= 0) and te[0] == t[0] and te[-1] <= t[-1]
+    # the spike is drawn within one bucket of where it happened
+    bucket = -(-n // 5_000) / 1000.0
+    assert abs(te[np.argmax(xe[:, 1])] - t[123_457]) <= bucket
+    t1, x1 = envelope(t[:50], x[:50, 0], 100)  # short: unchanged
+    assert t1 is t[:50].base or np.array_equal(t1, t[:50])
+    np.testing.assert_array_equal(x1, x[:50, 0])
+
+
+def test_long_session_axes_are_decimated_magnitudes_are_not(tmp_path):
+    s, _ = make_session(poses=50, seed=3, acc_rate=1000.0, gyro_rate=140.0)
+    assert len(s.t_acc) > DECIMATE_ABOVE
+    r = imucal.calibrate(s)
+    path = tmp_path / "long.rrd"
+    rows = save_recording(r, path)
+    assert rows[P.ACC_MAGNITUDE] == len(s.t_acc)
+    assert rows[P.GYRO_MAGNITUDE] == len(s.t_gyro)
+    assert rows[P.ACC_RAW] <= ENVELOPE_ROWS and rows[P.DETECTOR_STATISTIC] <= ENVELOPE_ROWS
+    _, raw = rb.scalars(path, P.ACC_RAW)
+    np.testing.assert_array_equal(raw.max(axis=0), s.acc.max(axis=0))
+    np.testing.assert_array_equal(raw.min(axis=0), s.acc.min(axis=0))
+    # Size model: ~28 bytes per magnitude row (time, 2 scalars, offset) plus the envelopes,
+    # whose size does not grow. At 60 min (3.6 M + 0.5 M samples) it stays under 150 MB.
+    budget = 30 * (len(s.t_acc) + len(s.t_gyro)) + 20e6
+    assert 30 * (3_600_000 + 504_000) + 20e6 < 150e6
+    assert path.stat().st_size < budget
+
+
+def test_two_segments_accelerometer_only_and_raw_counts(tmp_path):
+    s, _ = make_session(poses=40, seed=5, change_at=0.5)
+    r = imucal.calibrate(s)
+    assert len(r.segments) == 2
+    rec = _record(r, tmp_path / "two.rrd")
+    ents = rb.entities(rec.path)
+    for p in (P.lcurve_segment(0) + "/corner", P.lcurve_segment(1) + "/points",
+              P.iteration("whole", "accelerometer", "scale"),
+              P.iteration("segment_1", "gyroscope", "scale"), P.calibration(1, "gyroscope")):
+        assert p in ents, p
+    _, states = rb.column(rec.path, P.DETECTOR_SEGMENTS, "StateChange:state")
+    assert [s[0] for s in states] == ["segment 0", "between segments", "segment 1", ""]
+
+    acc_only = Session(acc=s.acc, t_acc=s.t_acc, acc_unit="g")
+    r = imucal.calibrate(acc_only, lam=0.01, single_segment=True)
+    rec = _record(r, tmp_path / "acc.rrd")
+    ents = rb.entities(rec.path)
+    assert P.ACC_MAGNITUDE in ents and P.BLOCK_ERROR_AFTER in ents
+    assert not any(p.startswith(("imu/gyroscope", "gravity", "lcurve", "lambda")) for p in ents)
+    assert "L-curve" not in rb.blueprint_containers(rec.path)
+    assert rb.values(rec.path, P.INFO)["lambda"] == 0.01
+
+    counts, _ = make_session(poses=30, seed=2, acc_unit="counts", gyro_unit="counts")
+    r = imucal.calibrate(counts)
+    rec = _record(r, tmp_path / "counts.rrd")
+    _, mag = rb.scalars(rec.path, P.ACC_MAGNITUDE)
+    _, w = rb.scalars(rec.path, P.GYRO_MAGNITUDE)
+    # "raw" goes through the nominal frame: comparable with the calibrated magnitude
+    assert np.median(mag[:, 0] / mag[:, 1]) == pytest.approx(1.0, abs=0.1)
+    assert w[:, 0].max() == pytest.approx(w[:, 1].max(), rel=0.1)
+
+
+def test_save_is_atomic(tmp_path, monkeypatch, run):
+    target = tmp_path / "keep.rrd"
+    target.write_bytes(b"previous")
+    import viewer.recording as recording
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(recording, "log_result", boom)
+    with pytest.raises(KeyboardInterrupt):
+        save_recording(run.result, target)
+    assert target.read_bytes() == b"previous"
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.rrd"]
+    with pytest.raises(imucal.ImucalError):
+        save_recording(run.result, tmp_path / "missing" / "x.rrd")
+
+
+# --- imucal-view ---------------------------------------------------------------------------------
+
+
+def test_view_save_writes_a_recording_and_opens_nothing(tmp_path, sample_session_path, capsys):
+    out = tmp_path / "run.rrd"
+    assert view(str(sample_session_path), save=str(out)) == 0
+    assert is_rrd(out) and out.read_bytes()[:3] == b"RRF"
+    assert capsys.readouterr().out.strip() == f"wrote {out}"
+    copy = tmp_path / "copy"
+    assert view(str(out), save=str(copy)) == 0  # an .rrd is copied as it is
+    assert copy.read_bytes() == out.read_bytes() and is_rrd(copy)
+
+
+def test_view_without_display_saves_beside_the_cwd(tmp_path, sample_session_path, capsys,
+                                                  monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert view(str(sample_session_path)) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and "no display" in out[0]
+    assert is_rrd(tmp_path / "session.rrd")
+    assert view(str(tmp_path / "session.rrd")) == 1  # an .rrd cannot be shown: one line
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no display" in err[0]
+
+
+def test_view_errors_are_one_line(tmp_path, capsys):
+    assert view(str(tmp_path / "nothing.mat"), save=str(tmp_path / "x.rrd")) == 1
+    bad = tmp_path / "bad.csv"
+    bad.write_text("not, numbers\nat, all\n")
+    assert view(str(bad), save=str(tmp_path / "x.rrd")) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(e.startswith("imucal-view: ") for e in err)
+    assert not (tmp_path / "x.rrd").exists()
+
+
+def test_cli_main(tmp_path, sample_session_path):
+    out = tmp_path / "cli.rrd"
+    with pytest.raises(SystemExit) as e:
+        main([str(sample_session_path), "--save", str(out)])
+    assert e.value.code == 0 and is_rrd(out)
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "missing.mat"), "--save", str(out)])
+    assert e.value.code == 1
+
+
+def test_web_command_binds_loopback():
+    cmd = web_command("rerun", "x.rrd", 9090, 9876)
+    assert cmd[cmd.index("--bind") + 1] == "127.0.0.1"
+    assert "--web-viewer-port" in cmd and "9090" in cmd and "--port" in cmd
+    assert web_url(9090, 9876) == ("http://127.0.0.1:9090/?url="
+                                   "rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy")
+
+
+def test_core_and_cli_do_not_load_rerun():
+    core = Path(imucal.__file__).parent
+    for f in core.glob("*.py"):
+        text = f.read_text()
+        assert "import rerun" not in text and "from viewer" not in text, f.name
+    code = ("import imucal, sys, viewer.app, viewer.paths; imucal.calibrate; "
+            "print('rerun' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=dict(os.environ), timeout=60)
+    assert out.stdout.strip() == "False"

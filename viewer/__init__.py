@@ -1,0 +1,12 @@
+"""viewer: an imucal run as a Rerun recording, and the ``imucal-view`` command.
+
+- :mod:`viewer.recording` — ``log_result(result, rec)``, ``save_recording(result, path)``; the
+  table of entity paths (a contract: :mod:`viewer.paths` names them without importing Rerun).
+- :mod:`viewer.blueprint` — the layout stored in every ``.rrd``.
+- :mod:`viewer.app` — ``view(target, save=..., web=..., port=...)`` and ``main()``.
+- :mod:`viewer.readback` — the numbers back out of an ``.rrd`` (scripts, tests).
+- :mod:`viewer.decimate` — the min/max envelope used for long per-axis signals.
+
+The core (``imucal``) never imports this package; importing it costs nothing until a
+recording is written (``import rerun`` happens there).
+"""
