@@ -6,12 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .detect import segment_sums
 from .errors import ImucalError
 from .lcurve import lcurve_corner
-from .lm import FitReport, fit_tikhonov
+from .lm import FactoredCov, FitReport, fit_tikhonov
 from .models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T
 
 DEFAULT_LAMBDAS = np.logspace(-8, 3, 34)  # three points a decade
+TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
 
 
 @dataclass(frozen=True)
@@ -97,8 +99,7 @@ def select_points(acc: np.ndarray, blocks: np.ndarray, mode: str = "thesis", n_s
     starts, ends = blocks[:, 0], blocks[:, 1]
     lengths = ends - starts
     if mode == "mean":
-        cs = np.vstack([np.zeros((1, 3)), np.cumsum(acc - acc[0], axis=0)])
-        pts = (cs[ends] - cs[starts]) / lengths[:, None] + acc[0]
+        pts = segment_sums(acc, starts, ends) / lengths[:, None]
         return pts, np.arange(len(blocks))
     if mode == "thesis":
         # n_select samples evenly spread over each block, then averaged in groups of n_group.
@@ -110,10 +111,10 @@ def select_points(acc: np.ndarray, blocks: np.ndarray, mode: str = "thesis", n_s
     elif mode == "chunks":
         n_chunks = n_group
         edges = starts[:, None] + (np.arange(n_chunks + 1)[None, :] * lengths[:, None]) // n_chunks
-        cs = np.vstack([np.zeros((1, 3)), np.cumsum(acc - acc[0], axis=0)])
-        sums = cs[edges[:, 1:]] - cs[edges[:, :-1]]
+        sums = segment_sums(acc, edges[:, :-1].ravel(), edges[:, 1:].ravel()).reshape(
+            len(blocks), n_chunks, 3)
         counts = (edges[:, 1:] - edges[:, :-1])[..., None]
-        pts = sums / np.maximum(counts, 1) + acc[0]
+        pts = np.where(counts > 0, sums / np.maximum(counts, 1), acc[0])
     else:
         raise ImucalError(f"unknown point selection {mode!r}; expected thesis, chunks or mean",
                           source="settings", field="points")
@@ -216,7 +217,12 @@ def best_fit(pts: np.ndarray, lam: float, starts: dict[str, np.ndarray]
     if not reports:
         raise ImucalError("the accelerometer fit produced non-finite residuals from every start",
                           source="accelerometer", field="fit")
-    best = min(reports.values(), key=lambda r: (r.cost, r.start_name))
+    # Starts that reach the same minimum differ in cost by rounding only (1e-14 relative):
+    # count those as ties, and break ties by name, so that which start "won" does not depend
+    # on the last bit of the arithmetic.
+    low = min(r.cost for r in reports.values())
+    tied = [r for r in reports.values() if r.cost <= low + TIE_RTOL * abs(low)]
+    best = min(tied, key=lambda r: r.start_name)
     return best, {k: r.cost for k, r in reports.items()}
 
 
@@ -340,26 +346,27 @@ def output_sensitivity(model: SensorModel, raw: np.ndarray) -> np.ndarray:
     return S
 
 
-def block_mean_cov(acc: np.ndarray, blocks: np.ndarray, fit: AccFit) -> np.ndarray:
+def block_mean_cov(acc: np.ndarray, blocks: np.ndarray, fit: AccFit) -> FactoredCov:
     """Covariance (3B, 3B) of the calibrated block means: sensor noise averaged over each
     block (independent between blocks) plus the calibration's own uncertainty, which is
     common to all blocks. Feeds honest standard errors to the gyroscope fit (M5 compares
-    directions that carry both)."""
+    directions that carry both).
+
+    Returned factored (``S cov S'`` plus 3 x 3 noise blocks on the diagonal, see
+    :class:`~imucal.lm.FactoredCov`): the dense matrix grows with the square of the number of
+    blocks (``np.asarray`` gives it)."""
     B = len(blocks)
     n = (blocks[:, 1] - blocks[:, 0]).astype(float)
     xc = acc - acc[0]
-    cs1 = np.vstack([np.zeros((1, 3)), np.cumsum(xc, axis=0)])
-    cs2 = np.vstack([np.zeros((1, 3)), np.cumsum(xc * xc, axis=0)])
-    m1 = (cs1[blocks[:, 1]] - cs1[blocks[:, 0]]) / n[:, None]
-    m2 = (cs2[blocks[:, 1]] - cs2[blocks[:, 0]]) / n[:, None]
+    m1 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
+    np.multiply(xc, xc, out=xc)
+    m2 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
+    del xc
     var_mean = np.clip(m2 - m1 * m1, 0, None) / np.maximum(n - 1, 1)[:, None]  # per axis
     M = fit.model.matrix
     noise = np.einsum("ij,bj,kj->bik", M, var_mean, M)  # M diag(var/n) M'
     S = output_sensitivity(fit.model, m1 + acc[0]).reshape(3 * B, 9)
-    cov = S @ fit.cov @ S.T
-    idx = np.arange(B)
-    cov.reshape(B, 3, B, 3)[idx, :, idx, :] += noise
-    return cov
+    return FactoredCov(S, fit.cov, noise)
 
 
 def undetermined(J: np.ndarray, names: tuple[str, ...], rel: float = 1e-3) -> list[str]:

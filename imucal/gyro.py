@@ -5,11 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
+from .detect import segment_sums
 from .errors import ImucalError
-from .integrate import ordered_product_soa, padded_steps, rk4_steps
-from .lm import FitReport, fit_tikhonov, sandwich_cov
+from .integrate import SLAB, StepLayout, _calibrator, _mul, product_rows
+from .lm import FactoredCov, FitReport, fit_tikhonov, sandwich_cov, trace_of
 from .models import GYRO_THETA0, SensorModel, gyro_T
 from .quaternion import rotate_inverse, to_matrix
 
@@ -30,9 +30,10 @@ class GyroSettings:
 class Transitions:
     """The gyroscope samples of every motion between consecutive static blocks, laid out once.
 
-    Transition k runs from the end of block k to the start of block k+1; its RK4 steps are
-    padded to the longest transition (identity steps do not change the product), so every
-    cost evaluation is a handful of vector operations over all transitions (M5).
+    Transition k runs from the end of block k to the start of block k+1. Its RK4 steps are laid
+    out time-major with the other transitions of similar length (:class:`StepLayout`; identity
+    steps pad the shorter ones), so every cost evaluation is a handful of vector operations over
+    all transitions (M5), and the model is applied to the raw rates slab by slab.
     """
 
     def __init__(self, w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray):
@@ -43,30 +44,103 @@ class Transitions:
         e = np.maximum(e, s)
         self.starts, self.ends = s, e
         self.n_steps = e - s
-        i0, self.dt = padded_steps(t, s, e)
-        # Components as separate contiguous (K, L) arrays: the hot loop is elementwise.
-        comps = [np.ascontiguousarray(w_raw[:, i]) for i in range(3)]
-        self.w0 = [c[i0] for c in comps]
-        self.w1 = [c[i0 + 1] for c in comps]
+        self.layout = StepLayout(t, s, e)
+        # Components as separate contiguous arrays: the hot loop is elementwise.
+        comps = [np.ascontiguousarray(w_raw[:, i], dtype=float) for i in range(3)]
+        self.rates = self.layout.gather(comps)
 
     def __len__(self) -> int:
         return len(self.starts)
 
     def rotations(self, model: SensorModel) -> np.ndarray:
         """Quaternion of the body rotation over each transition under ``model`` (K, 4)."""
-        return ordered_product_soa(rk4_steps(_apply(model, self.w0), _apply(model, self.w1),
-                                             self.dt))
+        return self.rotations_many([model])[0]
+
+    def rotations_many(self, models: list[SensorModel]) -> np.ndarray:
+        """:meth:`rotations` for several models in one pass (k, K, 4)."""
+        return self.layout.integrate(self.rates, [(m.matrix, m.b) for m in models])
 
     def predict(self, model: SensorModel, u_prev: np.ndarray) -> np.ndarray:
         """M5: gravity of block k-1 carried into the body frame of block k, ``R_k^T u_(k-1)``."""
         return rotate_inverse(self.rotations(model), u_prev)
 
+    def max_step_angle(self, model: SensorModel) -> float:
+        """Largest angle turned in one step, ``|w(t_n)| dt_n`` with the calibrated rate at the
+        step's start (0 without steps)."""
+        cal = _calibrator([(model.matrix, model.b)])
+        out = 0.0
+        for (_, _, _, dt, _), w in zip(self.layout.buckets, self.rates):
+            if dt.size:
+                c = cal(tuple(x[:-1, None, :] for x in w))
+                norm = np.sqrt(c[0] ** 2 + c[1] ** 2 + c[2] ** 2)[:, 0, :]
+                out = max(out, float(np.max(norm * dt)))
+        return out
 
-def _apply(model: SensorModel, w: list[np.ndarray]) -> tuple[np.ndarray, ...]:
-    """M4 on component arrays: ``w_i = sum_j M_ij (w_raw_j - b_j)``."""
-    M, b = model.matrix, model.b
-    d = [w[j] - b[j] for j in range(3)]
-    return tuple(M[i, 0] * d[0] + M[i, 1] * d[1] + M[i, 2] * d[2] for i in range(3))
+    def isotropic(self, bias: np.ndarray):
+        """A function of ``s`` giving :meth:`rotations` under the isotropic model ``w = s (w_raw -
+        bias)`` (the 1-D scale search runs it dozens of times).
+
+        With ``w = s d`` the closed-form RK4 step (:func:`~imucal.integrate.rk4_raw`) is a
+        polynomial in ``s`` whose coefficients depend on the data only: with ``e = s^2 A``,
+        ``P = (1 + e (s^2 B - 1/2), s h/4 (1 - e/6) (d0 + d1) + s^2 h^2/24 (1 - e/4) (d0 x d1))``,
+        ``A = h^2 |d0 + d1|^2 / 16`` and ``B = h^2 (d0 . d1) / 96``, all precomputed here, so an
+        evaluation costs about two thirds of a general one (the products of the steps remain).
+        """
+        pre = []
+        for (idx, _, _, dt, dt2), w in zip(self.layout.buckets, self.rates):
+            d = [x - b for x, b in zip(w, np.asarray(bias, float).tolist())]
+            d0 = [x[:-1] for x in d]
+            d1 = [x[1:] for x in d]
+            sd = [a + c for a, c in zip(d0, d1)]
+            cd = [d0[1] * d1[2] - d0[2] * d1[1], d0[2] * d1[0] - d0[0] * d1[2],
+                  d0[0] * d1[1] - d0[1] * d1[0]]
+            A = dt2 * (sd[0] * sd[0] + sd[1] * sd[1] + sd[2] * sd[2]) / 16.0
+            B = dt2 * (d0[0] * d1[0] + d0[1] * d1[1] + d0[2] * d1[2]) / 96.0
+            pre.append((idx, sd, cd, A, B, dt / 4.0, dt2 / 24.0))
+        n = len(self)
+
+        def rotations(scale: float) -> np.ndarray:
+            sc, sc2 = float(scale), float(scale) ** 2
+            out = np.empty((n, 4))
+            out[:] = (1.0, 0.0, 0.0, 0.0)
+            for idx, sd, cd, A, B, h4, h24 in pre:
+                L, kb = A.shape
+                rows = max(1, SLAB // max(kb, 1))
+                acc = None
+                for r0 in range(0, L, rows):
+                    sl = slice(r0, r0 + rows)
+                    e = A[sl] * sc2
+                    pw = B[sl] * sc2
+                    pw -= 0.5
+                    pw *= e
+                    pw += 1.0
+                    al = e * (-1.0 / 6.0)
+                    al += 1.0
+                    al *= h4[sl]
+                    al *= sc
+                    be = e * -0.25
+                    be += 1.0
+                    be *= h24[sl]
+                    be *= sc2
+                    pv = []
+                    for i in range(3):
+                        v = sd[i][sl] * al
+                        v += cd[i][sl] * be
+                        pv.append(v)
+                    q = product_rows((pw, *pv))
+                    acc = q if acc is None else _mul(acc, q)
+                out[idx] = np.stack(acc, axis=-1)
+            return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+        return rotations
+
+    def raw_turn(self, bias: np.ndarray) -> np.ndarray:
+        """Integral of the norm of the bias-free raw rate over each transition (K,)."""
+        out = np.zeros(len(self))
+        for (idx, _, _, dt, _), w in zip(self.layout.buckets, self.rates):
+            d = [0.5 * (x[:-1] + x[1:]) - b for x, b in zip(w, bias)]
+            out[idx] = np.sum(np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * dt, axis=0)
+        return out
 
 
 @dataclass(frozen=True)
@@ -119,10 +193,9 @@ def static_bias(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray, how: 
     if how != "all":
         raise ImucalError(f"unknown gyroscope bias source {how!r}; expected 'all' or 'first'",
                           source="settings", field="gyro_bias")
-    cs = np.vstack([np.zeros((1, 3)), np.cumsum(w_raw - w_raw[0], axis=0)])
-    total = (cs[hi] - cs[lo]).sum(axis=0)
+    total = segment_sums(w_raw, lo, hi).sum(axis=0)
     n = int((hi - lo).sum())
-    return total / n + w_raw[0], f"mean over all {len(lo)} static blocks ({n} samples)"
+    return total / n, f"mean over all {len(lo)} static blocks ({n} samples)"
 
 
 def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: np.ndarray
@@ -136,14 +209,15 @@ def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: n
     of the M5 cost; with no usable rotation the grid spans eight decades.
     """
 
+    iso = tr.isotropic(bias)
+
     def cost(log_s: float) -> float:
-        m = SensorModel(T=np.eye(3), K=np.full(3, np.exp(log_s)), b=bias)
-        r = u_meas - tr.predict(m, u_prev)
+        # = |u_meas - tr.predict(SensorModel(I, exp(log_s), bias), u_prev)|^2, faster
+        r = u_meas - rotate_inverse(iso(np.exp(log_s)), u_prev)
         return float(np.sum(r * r))
 
     turned = np.radians(angle_between(u_prev, u_meas))
-    d = [0.5 * (w0 + w1) - b for w0, w1, b in zip(tr.w0, tr.w1, bias)]
-    raw_turn = np.sum(np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * tr.dt, axis=1)
+    raw_turn = tr.raw_turn(bias)
     ok = (turned > np.radians(10.0)) & (raw_turn > 0)
     if ok.any():
         est = float(np.median(turned[ok] / raw_turn[ok]))
@@ -153,8 +227,78 @@ def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: n
     costs = np.array([cost(g) for g in grid])
     i = int(np.argmin(costs))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    res = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6})
-    return float(np.exp(res.x))
+    return float(np.exp(fminbound(cost, lo, hi, xatol=1e-6)))
+
+
+def fminbound(func, x1: float, x2: float, xatol: float = 1e-5, maxfun: int = 500) -> float:
+    """Bounded 1-D minimisation by Brent's method (golden sections and parabolic steps), the
+    algorithm of ``scipy.optimize.minimize_scalar(method="bounded")`` step for step, without
+    importing scipy (half a second of start-up). Returns the abscissa of the minimum."""
+    sqrt_eps = np.sqrt(2.2e-16)
+    golden_mean = 0.5 * (3.0 - np.sqrt(5.0))
+    a, b = x1, x2
+    fulc = a + golden_mean * (b - a)
+    nfc, xf = fulc, fulc
+    rat = e = 0.0
+    x = xf
+    fx = func(x)
+    num = 1
+    ffulc = fnfc = fx
+    xm = 0.5 * (a + b)
+    tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
+    tol2 = 2.0 * tol1
+    while np.abs(xf - xm) > (tol2 - 0.5 * (b - a)):
+        golden = 1
+        if np.abs(e) > tol1:  # try a parabolic fit
+            golden = 0
+            r = (xf - nfc) * (fx - ffulc)
+            q = (xf - fulc) * (fx - fnfc)
+            p = (xf - fulc) * q - (xf - nfc) * r
+            q = 2.0 * (q - r)
+            if q > 0.0:
+                p = -p
+            q = np.abs(q)
+            r = e
+            e = rat
+            if (np.abs(p) < np.abs(0.5 * q * r)) and (p > q * (a - xf)) and (p < q * (b - xf)):
+                rat = (p + 0.0) / q
+                x = xf + rat
+                if ((x - a) < tol2) or ((b - x) < tol2):
+                    si = np.sign(xm - xf) + ((xm - xf) == 0)
+                    rat = tol1 * si
+            else:
+                golden = 1
+        if golden:  # golden-section step
+            e = (a - xf) if xf >= xm else (b - xf)
+            rat = golden_mean * e
+        si = np.sign(rat) + (rat == 0)
+        x = xf + si * np.maximum(np.abs(rat), tol1)
+        fu = func(x)
+        num += 1
+        if fu <= fx:
+            if x >= xf:
+                a = xf
+            else:
+                b = xf
+            fulc, ffulc = nfc, fnfc
+            nfc, fnfc = xf, fx
+            xf, fx = x, fu
+        else:
+            if x < xf:
+                a = x
+            else:
+                b = x
+            if (fu <= fnfc) or (nfc == xf):
+                fulc, ffulc = nfc, fnfc
+                nfc, fnfc = x, fu
+            elif (fu <= ffulc) or (fulc == xf) or (fulc == nfc):
+                fulc, ffulc = x, fu
+        xm = 0.5 * (a + b)
+        tol1 = sqrt_eps * np.abs(xf) + xatol / 3.0
+        tol2 = 2.0 * tol1
+        if num >= maxfun:
+            break
+    return xf
 
 
 def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,
@@ -201,14 +345,15 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
 
     report = fit_tikhonov(res, None, theta0, theta0, settings.lam, start_name="prior")
     model = model_of(report.theta)
+    q_model = tr.rotations(model)  # integrated once, used three times below
     cov = report.cov
     if gravity_cov is not None:
-        R = to_matrix(tr.rotations(model))
+        R = to_matrix(q_model)
         meat = direction_error_cov(gravity, gravity_cov, R)
         n, p = report.jac.shape
         # Each residual is the difference of two unit vectors: only its 2 components across
         # u_k carry error to first order, so a transition gives 2 degrees of freedom, not 3.
-        s2 = max(report.data_cost - float(np.trace(meat)), 0.0) / max(2 * n // 3 - p, 1)
+        s2 = max(report.data_cost - trace_of(meat), 0.0) / max(2 * n // 3 - p, 1)
         cov, _ = sandwich_cov(report.jac, settings.lam, s2, meat)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     std[6:9] *= s0
@@ -219,8 +364,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     if have_nominal:
         raw_model = SensorModel(T=np.eye(3), K=np.full(3, s0), b=np.zeros(3))
         before = tr.predict(raw_model, u_prev)
-    after = tr.predict(model, u_prev)
-    angle = 2 * np.degrees(np.arccos(np.clip(np.abs(tr.rotations(model)[:, 0]), 0, 1)))
+    after = rotate_inverse(q_model, u_prev)  # = tr.predict(model, u_prev)
+    angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
 
     if np.any(model.K <= 0):
         warnings.append("gyroscope fit reached a non-positive scale: the result is not physical")
@@ -229,11 +374,10 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                         "frame) are far from 1: check the gyroscope unit")
     if report.cost > report.cost_start * (1 + 1e-9):
         warnings.append("gyroscope fit ended with a higher cost than it started from")
-    w_cal = _apply(model, tr.w0)
-    per_step = np.sqrt(w_cal[0] ** 2 + w_cal[1] ** 2 + w_cal[2] ** 2) * tr.dt
-    if per_step.size and per_step.max() > np.radians(20.0):
+    per_step = tr.max_step_angle(model)
+    if per_step > np.radians(20.0):
         warnings.append(f"rotations too fast for the gyroscope's sample rate: up to "
-                        f"{np.degrees(per_step.max()):.0f} degrees between two samples; the "
+                        f"{np.degrees(per_step):.0f} degrees between two samples; the "
                         "integration (M5) loses accuracy above about 20: turn more slowly")
     small = np.count_nonzero(angle < 10.0)
     if small:
@@ -249,8 +393,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                    rotation_angle=np.radians(angle), warnings=warnings)
 
 
-def direction_error_cov(gravity: np.ndarray, gravity_cov: np.ndarray, R: np.ndarray
-                        ) -> np.ndarray:
+def direction_error_cov(gravity: np.ndarray, gravity_cov: np.ndarray | FactoredCov,
+                        R: np.ndarray) -> np.ndarray | FactoredCov:
     """Covariance (3K, 3K) of the residuals ``u_k - R_k^T u_(k-1)`` caused by errors in the
     measured gravity (noise of each block mean, and the accelerometer calibration's own
     uncertainty, shared by all blocks).
@@ -258,15 +402,29 @@ def direction_error_cov(gravity: np.ndarray, gravity_cov: np.ndarray, R: np.ndar
     Without it the standard errors of the gyroscope parameters come out about twice too small
     on synthetic sessions: consecutive residuals share a block, and the accelerometer's errors
     are common to all of them, so the residuals are not independent.
+
+    The Jacobian ``Ju`` of the residuals with respect to the block means is block-bidiagonal,
+    so a factored ``gravity_cov`` (:class:`FactoredCov` with block-diagonal ``B``) gives a
+    factored result in ``O(K)``: ``(Ju U) C (Ju U)' + Ju B Ju'``, the last block-tridiagonal.
+    A dense ``gravity_cov`` gives the dense product.
     """
     B = len(gravity)
     K = B - 1
     norm = np.linalg.norm(gravity, axis=1)
     u = gravity / norm[:, None]
     D = (np.eye(3)[None] - u[:, :, None] * u[:, None, :]) / norm[:, None, None]  # du/dg
+    E = -np.einsum("kji,kjl->kil", R, D[:-1])  # -R_k^T du_(k-1)/dg
+    if isinstance(gravity_cov, FactoredCov) and gravity_cov.upper is None:
+        U = gravity_cov.U.reshape(B, 3, -1)
+        Uj = (D[1:] @ U[1:] + E @ U[:-1]).reshape(3 * K, -1)
+        N = gravity_cov.diag
+        DN = D[1:] @ N[1:]  # Ju[k, k+1] N[k+1]
+        diag = DN @ np.transpose(D[1:], (0, 2, 1)) + E @ N[:-1] @ np.transpose(E, (0, 2, 1))
+        upper = DN[:-1] @ np.transpose(E[1:], (0, 2, 1))  # Ju[k,k+1] N[k+1] Ju[k+1,k+1]'
+        return FactoredCov(Uj, gravity_cov.C, diag, upper)
     Ju = np.zeros((K, 3, B, 3))
     k = np.arange(K)
     Ju[k, :, k + 1, :] = D[1:]
-    Ju[k, :, k, :] = -np.einsum("kji,kjl->kil", R, D[:-1])  # -R_k^T du_(k-1)/dg
+    Ju[k, :, k, :] = E
     Ju = Ju.reshape(3 * K, 3 * B)
-    return Ju @ gravity_cov @ Ju.T
+    return Ju @ np.asarray(gravity_cov) @ Ju.T
