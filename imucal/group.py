@@ -13,8 +13,8 @@ change. So the grouping works on calibrated data, by binary segmentation:
    that the split explains, ``sqrt(rms_one^2 - rms_two^2)``, is the size of the change of
    conditions; above ``delta`` the stretch is split. (Comparing each side's fit on the other
    side's blocks instead amplifies the estimation noise of a 12-block fit past ``delta``.)
-3. Repeat on both halves. A side is never left with fewer than ``min_blocks`` blocks, so every
-   segment has enough orientations for its 9 parameters.
+3. Repeat on both halves. A side is never left with fewer than ``min_blocks`` blocks or fewer
+   than 9 distinct orientations, so every segment can determine its 9 parameters.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import numpy as np
 from .accel import jacobian, residuals
 from .lm import fit_tikhonov
 from .models import ACC_THETA0
+from .quality import distinct_orientations
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,9 @@ def _split(m: np.ndarray, i0: int, i1: int, start: np.ndarray, lam: float,
     j += i0
     change = float(np.sqrt(max(one - two, 0.0) / (i1 - i0)))
     split = change > settings.delta
+    # Never leave a side with too few orientations for its 9 parameters (method.md §2).
+    if split and min(distinct_orientations(m[i0:j]), distinct_orientations(m[j:i1])) < 9:
+        split = False
     tests.append(SplitTest(block=j, change=change, split=split))
     if not split:
         return [(i0, i1)]
