@@ -158,7 +158,21 @@ class GyroFit:
     u_pred_after: np.ndarray  # (K, 3) predicted by the calibrated gyroscope
     t_transition: np.ndarray  # (K, 2) [t_start, t_end] of each transition
     rotation_angle: np.ndarray  # (K,) integrated rotation angle, rad
+    static_bias: np.ndarray  # (3,) the bias measured on the still blocks, raw units
     warnings: list[str] = field(default_factory=list)
+
+    def model_for(self, theta: np.ndarray) -> SensorModel:
+        """The raw-unit model of any parameter vector of the fit (a step of its trace): scales
+        relative to the nominal scale, and an optimised bias a correction in nominal rad/s on
+        top of the static one (M4)."""
+        b = self.static_bias + (theta[9:12] / self.nominal_scale if len(theta) > 9 else 0.0)
+        return SensorModel(T=gyro_T(theta), K=np.asarray(theta[6:9], float) * self.nominal_scale,
+                           b=np.asarray(b, float))
+
+    @property
+    def u_blocks(self) -> np.ndarray:
+        """(K+1, 3) measured gravity direction of every still block of the segment."""
+        return np.vstack([self.u_prev[:1], self.u_meas])
 
     @property
     def angle_before(self) -> np.ndarray | None:
@@ -390,7 +404,7 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                    nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
                    u_meas=u_meas, u_pred_before=before, u_pred_after=after,
                    t_transition=np.column_stack([t[tr.starts], t[tr.ends]]),
-                   rotation_angle=np.radians(angle), warnings=warnings)
+                   rotation_angle=np.radians(angle), static_bias=bias, warnings=warnings)
 
 
 def direction_error_cov(gravity: np.ndarray, gravity_cov: np.ndarray | FactoredCov,

@@ -116,9 +116,7 @@ from imucal.atomic import atomic_path, check_output_path
 from imucal.models import (
     ACC_PARAM_NAMES,
     GYRO_PARAM_NAMES,
-    SensorModel,
     acc_theta,
-    gyro_T,
     gyro_theta,
 )
 
@@ -151,17 +149,6 @@ ARROW_BEFORE = 1.24
 
 
 # --- small mappings the core does not (yet) provide ----------------------------------------------
-
-
-def gyro_model_for(fit: GyroFit, theta: np.ndarray) -> SensorModel:
-    """Raw-unit gyroscope model of any step of the fit (the core's ``AccFit.model_for`` has no
-    gyroscope twin yet). Mirrors ``calibrate_gyroscope``: scales are relative to the nominal
-    scale, and an optimised bias is a correction in nominal rad/s on top of the static one."""
-    s0 = fit.nominal_scale
-    b = fit.model.b
-    if len(fit.report.theta) > 9:
-        b = b - fit.report.theta[9:12] / s0 + theta[9:12] / s0
-    return SensorModel(T=gyro_T(theta), K=np.asarray(theta[6:9], float) * s0, b=b)
 
 
 def gyro_nominal(result: Result) -> np.ndarray:
@@ -519,7 +506,7 @@ def _log_iterations(result: Result, rec: rr.RecordingStream, rows: dict[str, int
         rep = fit.report
         if len(rep.trace_cost) == 0:
             return
-        models = [gyro_model_for(fit, th) for th in rep.trace_theta]
+        models = [fit.model_for(th) for th in rep.trace_theta]
         params = np.array([gyro_theta(m) for m in models])
         bias = np.array([m.b for m in models])
         _log_trace(rec, rows, name, "gyroscope", rep.trace_cost, params[:, 0:6], params[:, 6:9],
