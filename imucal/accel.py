@@ -303,7 +303,8 @@ def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
     curve = LCurve(lambdas=lambdas, residual_norm=rho, solution_norm=eta,
                    thetas=np.array([f.theta for f in fits]), corner=corner, curvature=curv)
     return curve, best_fit(pts, float(lambdas[corner]),
-                           {**starts, "continuation": fits[corner].theta})
+                           {**starts, f"{fits[corner].start_name}, continued along the L-curve":
+                            fits[corner].theta})
 
 
 def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal) -> list[str]:
