@@ -24,7 +24,8 @@ from imucal.synth import make_session
 
 
 def exhaustive_group(m, theta, lam, settings):
-    """The original O(B^2) binary segmentation: two LM fits for every boundary."""
+    """The original O(B^2) binary segmentation: two LM fits for every boundary (with the
+    product's rule that a side keeps at least 9 distinct orientations)."""
     tests = []
     fits = [0]
 
@@ -46,6 +47,9 @@ def exhaustive_group(m, theta, lam, settings):
         _, j, th_a, th_b, two = best
         change = float(np.sqrt(max(one - two, 0.0) / (i1 - i0)))
         s = change > settings.delta
+        veto = getattr(G, "distinct_orientations", None)  # the product's own rule, if any
+        if s and veto is not None and min(veto(m[i0:j]), veto(m[j:i1])) < 9:
+            s = False
         tests.append((j, change, s))
         if not s:
             return [(i0, i1)]

@@ -51,14 +51,14 @@ def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
                     segments: list[Segment], g_in: float, g_out: float) -> Quality:
     notes = []
     after_blocks = (np.linalg.norm(block_means(cal.acc, det.blocks), axis=1) / g_out - 1) * 1e3
-    after_samples = _block_samples_rms(_norm_error_mg(cal.acc, g_out), det.blocks)
+    after_samples = _block_samples_norm_rms(cal.acc, g_out, det.blocks)
     before_blocks = before_samples = None
     if session.acc_unit == "counts":
         notes.append("accelerometer in raw counts: no 'before' static norm error without a "
                      "nominal sensitivity")
     else:
         before_blocks = (np.linalg.norm(det.means, axis=1) / g_in - 1) * 1e3
-        before_samples = _block_samples_rms(_norm_error_mg(session.acc, g_in), det.blocks)
+        before_samples = _block_samples_norm_rms(session.acc, g_in, det.blocks)
 
     angle = None
     gyro_fits = [s.gyro for s in segments if s.gyro is not None]
@@ -80,14 +80,26 @@ def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
         block_norm_error_before_mg=before_blocks, notes=tuple(notes))
 
 
-def _block_samples_rms(x: np.ndarray, blocks: np.ndarray) -> float:
-    """RMS of ``x`` (N,) over the samples inside the blocks, from per-block sums of squares
-    (no mask, no copy of the samples)."""
+def _block_samples_norm_rms(x: np.ndarray, g: float, blocks: np.ndarray,
+                            chunk: int = 1 << 16) -> float:
+    """RMS over the samples inside the blocks of ``(|x| / g - 1) * 1000`` (mg), ``chunk``
+    rows at a time: per-block sums of squares, no mask, no temporary the length of ``x``."""
     n = int(np.sum(blocks[:, 1] - blocks[:, 0])) if len(blocks) else 0
     if n == 0:
         return float("nan")
-    np.multiply(x, x, out=x)
-    return float(np.sqrt(np.sum(segment_sums(x, blocks[:, 0], blocks[:, 1])) / n))
+    starts, ends = blocks[:, 0], blocks[:, 1]
+    total = 0.0
+    for c0 in range(0, len(x), chunk):
+        c1 = min(len(x), c0 + chunk)
+        i0 = int(np.searchsorted(ends, c0, side="right"))  # first block ending after c0
+        i1 = int(np.searchsorted(starts, c1, side="left"))  # blocks starting before c1
+        if i1 <= i0:
+            continue
+        dev = _norm_error_mg(x[c0:c1], g)
+        np.multiply(dev, dev, out=dev)
+        total += float(np.sum(segment_sums(dev, np.maximum(starts[i0:i1], c0) - c0,
+                                           np.minimum(ends[i0:i1], c1) - c0)))
+    return float(np.sqrt(total / n))
 
 
 def _norm_error_mg(x: np.ndarray, g: float) -> np.ndarray:
