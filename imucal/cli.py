@@ -766,6 +766,10 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     _err(f"warning: {category.__name__}: {message}")
 
 
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the exit code (never a traceback for the user)."""
     import warnings
@@ -776,6 +780,12 @@ def main(argv: list[str] | None = None) -> int:
     # a user's own setting wins.
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+    # A polite kill (SIGTERM) unwinds like Ctrl-C, so a write in progress removes its
+    # temporary file instead of leaving it beside the output.
+    import signal
+
+    with contextlib.suppress(ValueError):  # not the main thread (tests): keep the default
+        signal.signal(signal.SIGTERM, _on_sigterm)
     debug = os.environ.get("IMUCAL_DEBUG", "") not in ("", "0")
     if not debug:
         warnings.showwarning = _show_warning
