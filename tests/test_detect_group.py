@@ -92,3 +92,24 @@ def test_single_segment_mode():
     r = imucal.calibrate(session, single_segment=True)
     assert len(r.segments) == 1
     assert "single segment" in r.grouping.mode
+
+
+def test_fast_split_search_agrees_with_exhaustive():
+    # best_split scores every boundary by a Gauss-Newton model and fits only the best few;
+    # it must land where fitting both sides of every boundary does.
+    from imucal.group import _fit, best_split
+
+    for seed, change in ((31, 0.4), (32, 0.65), (33, None)):
+        session, _ = make_session(poses=36, seed=seed, change_at=change)
+        r = imucal.calibrate(session, single_segment=True)
+        m = r.whole.nominal.to_nominal(r.detection.means)
+        lam = r.whole.lam * len(m) / r.whole.n_points
+        start = r.whole.theta_nominal
+        k = 12
+        costs = {}
+        for j in range(k, len(m) - k + 1):
+            _, c_a, _ = _fit(m[:j], start, lam)
+            _, c_b, _ = _fit(m[j:], start, lam)
+            costs[j] = c_a + c_b
+        exhaustive = min(costs, key=lambda j: (costs[j], j))
+        assert best_split(m, start, lam, k)[0] == exhaustive
