@@ -24,6 +24,14 @@ def _batches(rrd: str | os.PathLike, entity: str, static: bool) -> list:
     return [c.to_record_batch() for c in stream.to_chunks()]
 
 
+def _index(batch, timeline: str) -> np.ndarray:
+    """A batch's timeline column: seconds for a duration timeline, integers for a sequence."""
+    col = batch.column(timeline)
+    if str(col.type).startswith("duration"):
+        return col.cast("int64").to_numpy() / 1e9
+    return col.to_numpy()
+
+
 def scalars(rrd: str | os.PathLike, entity: str, timeline: str = "time"
             ) -> tuple[np.ndarray, np.ndarray]:
     """Index (seconds for ``time``, integers for sequences) and values, (N,) or (N, k),
@@ -33,11 +41,7 @@ def scalars(rrd: str | os.PathLike, entity: str, timeline: str = "time"
         names = b.schema.names
         if timeline not in names or "Scalars:scalars" not in names:
             continue
-        col = b.column(timeline)
-        if str(col.type).startswith("duration"):
-            idx.append(col.cast("int64").to_numpy() / 1e9)
-        else:
-            idx.append(col.to_numpy())
+        idx.append(_index(b, timeline))
         lists = b.column("Scalars:scalars")
         flat = lists.flatten().to_numpy()
         vals.append(flat.reshape(len(b), -1))
@@ -58,11 +62,7 @@ def column(rrd: str | os.PathLike, entity: str, component: str, timeline: str = 
     for b in _batches(rrd, entity, static=False):
         if component not in b.schema.names or timeline not in b.schema.names:
             continue
-        col = b.column(timeline)
-        if str(col.type).startswith("duration"):
-            idx.append(col.cast("int64").to_numpy() / 1e9)
-        else:
-            idx.append(col.to_numpy())
+        idx.append(_index(b, timeline))
         vals += b.column(component).to_pylist()
     t = np.concatenate(idx) if idx else np.zeros(0)
     order = np.argsort(t, kind="stable")
