@@ -713,7 +713,7 @@ def view(
     load_options = {key: v for key, v in load_kw.items() if v != LOAD_DEFAULTS[key]}
     overrides = {key: v for key, v in settings.items() if v != DEFAULTS[key]}
     if not target.exists():
-        raise ImucalError(f"file not found: {target}", source=str(target))
+        raise ImucalError("file not found", source=str(target))
     if save is not None:
         _check_outputs([save], [target, gyro])
     view_fn = _import_viewer("viewer.app", "view")
