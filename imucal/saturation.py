@@ -9,28 +9,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from .detect import runs_of_true
+
 
 def saturated_mask(x: np.ndarray, min_run: int = 5) -> np.ndarray:
     """Samples where an axis sits at its extreme value for ``min_run`` or more samples in a row.
 
     Noise makes an unclipped signal touch its own maximum once or twice; a clipped one sits at
-    it. Vectorised: run lengths from the edges of a boolean array.
+    it. Runs come from :func:`imucal.detect.runs_of_true`.
     """
     out = np.zeros(len(x), dtype=bool)
     for axis in range(x.shape[1]):
         col = x[:, axis]
         for extreme in (col.max(), col.min()):
-            at = col == extreme
-            if at.sum() < min_run:
-                continue
-            padded = np.concatenate(([False], at, [False])).astype(np.int8)
-            edges = np.flatnonzero(np.diff(padded)).reshape(-1, 2)
-            long_runs = edges[(edges[:, 1] - edges[:, 0]) >= min_run]
-            if len(long_runs):
-                d = np.zeros(len(col) + 1, dtype=np.int32)
-                np.add.at(d, long_runs[:, 0], 1)
-                np.add.at(d, long_runs[:, 1], -1)
-                out |= np.cumsum(d[:-1]) > 0
+            runs = runs_of_true(col == extreme)
+            for start, end in runs[(runs[:, 1] - runs[:, 0]) >= min_run]:
+                out[start:end] = True  # a loop over clipped runs, not over samples
     return out
 
 
