@@ -165,9 +165,7 @@ class GyroFit:
         """The raw-unit model of any parameter vector of the fit (a step of its trace): scales
         relative to the nominal scale, and an optimised bias a correction in nominal rad/s on
         top of the static one (M4)."""
-        b = self.static_bias + (theta[9:12] / self.nominal_scale if len(theta) > 9 else 0.0)
-        return SensorModel(T=gyro_T(theta), K=np.asarray(theta[6:9], float) * self.nominal_scale,
-                           b=np.asarray(b, float))
+        return gyro_model_of(theta, self.static_bias, self.nominal_scale)
 
     @property
     def u_blocks(self) -> np.ndarray:
@@ -182,6 +180,15 @@ class GyroFit:
     @property
     def angle_after(self) -> np.ndarray:
         return angle_between(self.u_meas, self.u_pred_after)
+
+
+def gyro_model_of(theta: np.ndarray, static_bias: np.ndarray, s0: float) -> SensorModel:
+    """M4 in raw units from the fit's parameters: 6 misalignments, 3 scales relative to the
+    nominal scale ``s0`` and, when there are 12, a bias correction in nominal rad/s on top of
+    the static bias."""
+    b = static_bias + (theta[9:12] / s0 if len(theta) > 9 else 0.0)
+    return SensorModel(T=gyro_T(theta), K=np.asarray(theta[6:9], float) * s0,
+                       b=np.asarray(b, float))
 
 
 def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -351,8 +358,7 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         theta0 = np.r_[theta0, np.zeros(3)]  # bias correction in nominal rad/s
 
     def model_of(theta: np.ndarray) -> SensorModel:
-        b = bias + (theta[9:12] / s0 if n_bias else 0.0)
-        return SensorModel(T=gyro_T(theta), K=theta[6:9] * s0, b=b)
+        return gyro_model_of(theta, bias, s0)
 
     def res(theta: np.ndarray) -> np.ndarray:
         return (u_meas - tr.predict(model_of(theta), u_prev)).ravel()
