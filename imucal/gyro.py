@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,6 +64,35 @@ class Transitions:
     def predict(self, model: SensorModel, u_prev: np.ndarray) -> np.ndarray:
         """M5: gravity of block k-1 carried into the body frame of block k, ``R_k^T u_(k-1)``."""
         return rotate_inverse(self.rotations(model), u_prev)
+
+    def jacobian(self, model_of: Callable[[np.ndarray], SensorModel], theta: np.ndarray,
+                 u_prev: np.ndarray) -> np.ndarray:
+        """d (u_meas - predict(model_of(theta), u_prev)) / d theta, (3K, p) (M5's residuals).
+
+        A parameter moves the calibrated rate by ``dw = E (w_raw - b) + e`` with ``E = dM``
+        and ``e = -M db``; the end orientation then turns by ``dphi = R^T S [E | e]``
+        (:meth:`~imucal.integrate.StepLayout.sensitivity`) and the predicted direction
+        ``v = R^T u_prev`` by ``dphi x v``. ``M`` and ``b`` are bilinear in the parameters, so
+        central differences of that small map are exact to rounding.
+        """
+        model = model_of(theta)
+        q, S = self.layout.sensitivity(self.rates, model.matrix, model.b)
+        p = len(theta)
+        G = np.empty((p, 3, 4))
+        for i in range(p):
+            h = 1e-4 * max(1.0, abs(float(theta[i])))
+            up, dn = theta.copy(), theta.copy()
+            up[i] += h
+            dn[i] -= h
+            mu, md = model_of(up), model_of(dn)
+            G[i, :, :3] = (mu.matrix - md.matrix) / (2 * h)
+            G[i, :, 3] = -(model.matrix @ (mu.b - md.b)) / (2 * h)
+        X = np.einsum("kmij,pij->kmp", S, G)  # integral of R(t) dw(t) dt, per parameter
+        R = to_matrix(q)
+        dphi = np.einsum("kmn,kmp->knp", R, X)
+        v = np.einsum("kmn,km->kn", R, u_prev)
+        J = np.cross(dphi, v[:, :, None], axisa=1, axisb=1, axisc=1)
+        return J.reshape(-1, p)
 
     def max_step_angle(self, model: SensorModel) -> float:
         """Largest angle turned in one step, ``|w(t_n)| dt_n`` with the calibrated rate at the
@@ -242,7 +272,10 @@ def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: n
     ok = (turned > np.radians(10.0)) & (raw_turn > 0)
     if ok.any():
         est = float(np.median(turned[ok] / raw_turn[ok]))
-        grid = np.linspace(np.log(est / 2.0), np.log(est * 4.0), 25)
+        # Steps of 19 %: a rotation of angle a aliases only when the scale is off by about
+        # 2 pi / a, so the basin of the right scale spans many steps (13 points, not 25:
+        # each point is a whole integration).
+        grid = np.linspace(np.log(est / 2.0), np.log(est * 4.0), 13)
     else:
         grid = np.linspace(np.log(1e-7), np.log(10.0), 160)
     costs = np.array([cost(g) for g in grid])
@@ -363,7 +396,10 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     def res(theta: np.ndarray) -> np.ndarray:
         return (u_meas - tr.predict(model_of(theta), u_prev)).ravel()
 
-    report = fit_tikhonov(res, None, theta0, theta0, settings.lam, start_name="prior")
+    def jac(theta: np.ndarray) -> np.ndarray:
+        return tr.jacobian(model_of, theta, u_prev)
+
+    report = fit_tikhonov(res, jac, theta0, theta0, settings.lam, start_name="prior")
     model = model_of(report.theta)
     q_model = tr.rotations(model)  # integrated once, used three times below
     cov = report.cov

@@ -182,6 +182,29 @@ def product_rows(P: Quat) -> Quat:
     return tuple(S[:, 0])
 
 
+def prefix_rows(P: Quat) -> Quat:
+    """Inclusive prefix products ``P[0] (x) ... (x) P[n]`` along axis 0 of (L, ...) component
+    arrays, for every ``n``, in ``2 L`` products and ``log2(L)`` levels.
+
+    The rows are multiplied in pairs, the pairs' prefixes found recursively, and each even row
+    then gets the prefix of the pairs before it (the work-efficient parallel scan).
+    """
+    n = P[0].shape[0]
+    if n == 1:
+        return tuple(c.copy() for c in P)
+    m = n // 2
+    pairs = prefix_rows(_mul(tuple(c[0:2 * m:2] for c in P), tuple(c[1:2 * m:2] for c in P)))
+    out = tuple(np.empty_like(c) for c in P)
+    for o, c, s in zip(out, P, pairs):
+        o[1:2 * m:2] = s  # row 2j + 1: the prefix of pairs 0..j
+        o[0] = c[0]
+    if n > 2:
+        even = _mul(tuple(s[0:(n - 1) // 2] for s in pairs), tuple(c[2:n:2] for c in P))
+        for o, e in zip(out, even):
+            o[2:n:2] = e  # row 2j: the prefix of pairs 0..j-1, times row 2j
+    return out
+
+
 def ordered_product_soa(P: Quat) -> Quat:
     """``P[..., 0] (x) P[..., 1] (x) ...`` along the last axis, as a normalised (..., 4) array.
 
@@ -303,6 +326,112 @@ class StepLayout:
                 acc = q if acc is None else _mul(acc, q)
             out[:, idx] = np.stack(np.broadcast_arrays(*acc), axis=-1)
         return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+    def sensitivity(self, samples: list[Vec], M: np.ndarray, b: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """What the gyroscope fit's Jacobian needs, for the model ``w = M (w_raw - b)`` (M4).
+
+        Returns every transition's rotation ``q`` (n, 4), normalised, and ``S`` (n, 3, 3, 4),
+        ``S[k, :, i, j] = integral of R(t)[:, i] d_j(t) dt`` over transition k, with ``R(t)``
+        the rotation from the transition's start to ``t`` and ``d = (w_raw - b, 1)``.
+
+        Why: perturbing the rate by ``dw(t)`` turns the end orientation by the body-frame
+        rotation vector ``dphi = R(T)^T integral of R(t) dw(t) dt`` (the variational equation of
+        ``dR/dt = R [w]x``), and every parameter of M4 perturbs the rate linearly in ``d``, so
+        the 9 (or 12) columns of the Jacobian come from ``S`` by small contractions. One
+        prefix scan of the steps (about two evaluations of the cost) replaces the 9 cost
+        evaluations of a finite-difference Jacobian. The integral is the trapezoidal rule on
+        the samples: its relative error, about ``(w h)^2 / 12`` per step, is a few 1e-5 at
+        100 Hz and fast turns, well below what the fit needs of a Jacobian (the residuals
+        themselves are always evaluated exactly).
+        """
+        cal = _calibrator([(M, b)])
+        b = np.asarray(b, float).tolist()
+        q_out = np.empty((self.n, 4))
+        q_out[:] = (1.0, 0.0, 0.0, 0.0)
+        S_out = np.zeros((self.n, 9, 4))
+        for (idx, _, _, dt, dt2), w in zip(self.buckets, samples):
+            L, kb = dt.shape
+            c = np.zeros((L + 1, kb))  # trapezoid weight of each sample (0 in the padding)
+            c[:-1] += 0.5 * dt
+            c[1:] += 0.5 * dt
+            # Transition-major (kb, L + 1, 4), so that each slab's sum over samples is one
+            # contiguous matrix product per transition.
+            weights = np.empty((kb, L + 1, 4))
+            weights[:, :, 3] = c.T
+            for j in range(3):
+                weights[:, :, j] = ((w[j] - b[j]) * c).T
+            om = tuple(x[:, 0, :] for x in cal(tuple(x[:, None, :] for x in w)))
+            # The first sample: R = I, so S[k, 3 i + i, j] gets its weighted d_j.
+            S = np.zeros((kb, 9, 4))
+            for i in range(3):
+                S[:, 4 * i, :] = weights[:, 0, :]
+            carry = None
+            rows = max(1, SLAB // max(kb, 1))
+            R = np.empty((kb, 9, min(rows, L)))
+            for r0 in range(0, L, rows):
+                r1 = min(r0 + rows, L)
+                P = rk4_raw(tuple(x[r0:r1] for x in om), tuple(x[r0 + 1:r1 + 1] for x in om),
+                            dt[r0:r1], dt2[r0:r1])
+                Q = prefix_rows(P)  # orientation at samples r0 + 1 .. r1 relative to r0
+                Rs = R[:, :, :r1 - r0]
+                _matrix_rows(Q, Rs.transpose(2, 1, 0))
+                part = np.matmul(Rs, weights[:, r0 + 1:r1 + 1])  # (kb, 9, 4)
+                if carry is None:
+                    carry = tuple(x[-1] for x in Q)
+                else:
+                    # R(carry (x) Q_n) = R(carry) R(Q_n): rotate the slab's sum once instead
+                    # of every sample's orientation.
+                    Rc = _matrix_rows(tuple(x[None] for x in carry), np.empty((1, 9, kb)))
+                    Rc = Rc[0].T.reshape(kb, 3, 3)
+                    part = np.matmul(Rc, part.reshape(kb, 3, 12)).reshape(kb, 9, 4)
+                    carry = _mul(carry, tuple(x[-1] for x in Q))
+                S += part
+            if carry is not None:
+                q_out[idx] = np.stack(carry, axis=-1)
+            S_out[idx] = S
+        q_out /= np.linalg.norm(q_out, axis=-1, keepdims=True)
+        return q_out, S_out.reshape(self.n, 3, 3, 4)
+
+
+def _matrix_rows(q: Quat, out: np.ndarray) -> np.ndarray:
+    """Rotation matrices, row-major entries along axis 1 of ``out`` (rows, 9, K), of (rows, K)
+    component arrays; exact for quaternions that are not quite unit (RK4 steps are not).
+
+    Written into ``out`` with two scratch arrays: fresh temporaries of this size cost more in
+    page faults than in arithmetic here (measured: 5.5 ms against 0.6 ms per slab)."""
+    w, x, y, z = q
+    s = w * w
+    a = np.multiply(x, x)
+    s += a
+    np.multiply(y, y, out=a)
+    s += a
+    np.multiply(z, z, out=a)
+    s += a
+    np.divide(2.0, s, out=s)
+    xs, ys, zs = x * s, y * s, z * s
+    b = s  # s is no longer needed
+    e = [out[:, i] for i in range(9)]
+    np.multiply(x, ys, out=a)  # xy
+    np.multiply(w, zs, out=b)  # wz
+    np.subtract(a, b, out=e[1])
+    np.add(a, b, out=e[3])
+    np.multiply(x, zs, out=a)  # xz
+    np.multiply(w, ys, out=b)  # wy
+    np.add(a, b, out=e[2])
+    np.subtract(a, b, out=e[6])
+    np.multiply(y, zs, out=a)  # yz
+    np.multiply(w, xs, out=b)  # wx
+    np.subtract(a, b, out=e[5])
+    np.add(a, b, out=e[7])
+    np.multiply(x, xs, out=xs)  # xx
+    np.multiply(y, ys, out=ys)  # yy
+    np.multiply(z, zs, out=zs)  # zz
+    for k, (p, r) in ((0, (ys, zs)), (4, (xs, zs)), (8, (xs, ys))):
+        np.add(p, r, out=e[k])
+        np.subtract(1.0, e[k], out=e[k])
+    return out
 
 
 def _calibrator(models: list[tuple]):
