@@ -557,6 +557,23 @@ def test_missing_file_and_directory(tmp_path):
         load_session(tmp_path)
 
 
+def test_polars_panic_is_an_imucal_error(tmp_path, monkeypatch):
+    """polars reports some malformed input with PanicException, a BaseException, and is imported
+    only by the readers that need it; its panic must still become one ImucalError line."""
+    from polars.exceptions import PanicException
+
+    import imucal.load
+
+    def panic(path):
+        raise PanicException("called `Option::unwrap()` on a `None` value\nat src/lib.rs")
+
+    monkeypatch.setattr(imucal.load, "_read_parquet", panic)
+    path = _corrupt(b"PAR1")(tmp_path / "panic.parquet")
+    with pytest.raises(ImucalError, match=r"panic.parquet: cannot read the file: PanicException: "
+                                          r"called `Option::unwrap\(\)` on a `None` value$"):
+        load_session(path)
+
+
 def test_gyro_path_needs_three_column_files(tmp_path):
     six = write_csv(tmp_path / "six.csv", None, _table()[:, 1:])
     three = write_csv(tmp_path / "three.csv", None, _table()[:, 1:4])
