@@ -21,7 +21,8 @@ For every size it
 Side by side in the same run, on a short session, it times naive versions of the two stages
 that matter most (a Python loop over windows for the detector statistic, a Python loop over
 samples for one RK4 evaluation of the gyroscope cost) against the product's, and the gyroscope
-Jacobian by the methods on offer. Targets are printed as measured, never asserted.
+Jacobian by the methods on offer. Bytecode is compiled first, as after any first run.
+Targets are printed as measured, never asserted.
 
 Results go to stdout and to ``bench/results.md`` (``--out``).
 """
@@ -29,6 +30,7 @@ Results go to stdout and to ``bench/results.md`` (``--out``).
 from __future__ import annotations
 
 import argparse
+import compileall
 import contextlib
 import datetime as _dt
 import json
@@ -530,8 +532,12 @@ def jacobian_methods(repeat: int, minutes: float) -> dict:
         vf._fun, vf._jac, vf.x, vf.f = res, None, np.asarray(th, float), res(th)
         return vf._jacobian()
 
+    def _variational(th):  # the product's own (Transitions.jacobian)
+        return p["tr"].jacobian(p["model_of"], np.asarray(th, float), p["u_prev"])
+
     methods = {
-        "2-point FD (in use)": (_fd2, None),
+        "variational equation, one prefix scan (in use)": (_variational, _variational),
+        "2-point FD (used before)": (_fd2, None),
         "3-point FD": (lambda th: approx_derivative(res, th, method="3-point"),
                        lambda th: approx_derivative(res, th, method="3-point")),
         "complex step (exact)": (lambda th: complex_step_jacobian(p, th),
@@ -570,9 +576,11 @@ STARTUP_STEPS = [
     ("python -c pass", "pass"),
     ("+ numpy", "import numpy"),
     ("+ imucal.cli (all `imucal --help` loads)", "import numpy, imucal.cli"),
-    ("+ imucal.load (polars)", "import numpy, imucal.cli, imucal.load"),
+    ("+ imucal.load", "import numpy, imucal.cli, imucal.load"),
     ("+ imucal.pipeline, imucal.calibration_file",
      "import numpy, imucal.cli, imucal.load, imucal.pipeline, imucal.calibration_file"),
+    ("(for comparison) + polars", "import numpy, imucal.cli, imucal.load, imucal.pipeline, "
+     "imucal.calibration_file, polars"),
     ("(for comparison) + scipy.optimize",
      "import numpy, imucal.cli, imucal.load, imucal.pipeline, imucal.calibration_file, "
      "scipy.optimize"),
@@ -872,6 +880,10 @@ def main() -> int:
     if not XSENS.is_dir():
         sizes = [s for s in sizes if s.synthetic]
     info = machine_info()
+    # Every machine caches bytecode after a package's first run; with PYTHONDONTWRITEBYTECODE
+    # set (as in some sandboxes) each timed process would compile imucal anew (~50 ms).
+    for pkg in ("imucal", "viewer"):
+        compileall.compile_dir(ROOT / pkg, quiet=1)
     print(f"{info['cpu']}, {info['cores']} cores, {info['ram']}; "
           + ", ".join(f"{k} {v}" for k, v in info["versions"].items()), flush=True)
     extra: dict = {}
