@@ -28,6 +28,14 @@ class GyroSettings:
     nominal_scale: float | None = None
 
 
+def transition_samples(t: np.ndarray, block_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gyroscope sample indices bracketing each transition: from just before the end of block k
+    to just after the start of block k+1."""
+    s = np.clip(np.searchsorted(t, block_times[:-1, 1], side="left") - 1, 0, len(t) - 1)
+    e = np.clip(np.searchsorted(t, block_times[1:, 0], side="right"), 0, len(t) - 1)
+    return s, np.maximum(e, s)
+
+
 class Transitions:
     """The gyroscope samples of every motion between consecutive static blocks, laid out once.
 
@@ -37,12 +45,11 @@ class Transitions:
     all transitions (M5), and the model is applied to the raw rates slab by slab.
     """
 
-    def __init__(self, w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray):
-        t_end_prev = block_times[:-1, 1]
-        t_start_next = block_times[1:, 0]
-        s = np.clip(np.searchsorted(t, t_end_prev, side="left") - 1, 0, len(t) - 1)
-        e = np.clip(np.searchsorted(t, t_start_next, side="right"), 0, len(t) - 1)
-        e = np.maximum(e, s)
+    def __init__(self, w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,
+                 keep: np.ndarray | None = None):
+        s, e = transition_samples(t, block_times)
+        if keep is not None:  # only these transitions (a boolean mask over all of them)
+            s, e = s[keep], e[keep]
         self.starts, self.ends = s, e
         self.n_steps = e - s
         self.layout = StepLayout(t, s, e)
@@ -189,6 +196,8 @@ class GyroFit:
     t_transition: np.ndarray  # (K, 2) [t_start, t_end] of each transition
     rotation_angle: np.ndarray  # (K,) integrated rotation angle, rad
     static_bias: np.ndarray  # (3,) the bias measured on the still blocks, raw units
+    # (K,) transitions left out of the fit (through saturated samples); None: none left out
+    excluded: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
 
     def model_for(self, theta: np.ndarray) -> SensorModel:
@@ -358,13 +367,16 @@ def fminbound(func, x1: float, x2: float, xatol: float = 1e-5, maxfun: int = 500
 def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,
                         gravity: np.ndarray, gyro_unit: str,
                         settings: GyroSettings = GyroSettings(),
-                        gravity_cov: np.ndarray | None = None) -> GyroFit:
+                        gravity_cov: np.ndarray | FactoredCov | None = None,
+                        saturated: np.ndarray | None = None) -> GyroFit:
     """Fit M4 so that integrating the calibrated rate (M5) turns each block's gravity
     direction into the next one's.
 
     ``block_times`` (B, 2) are the static blocks in seconds and ``gravity`` (B, 3) their mean
     calibrated accelerations, with ``gravity_cov`` (3B, 3B) their covariance when known (see
-    :func:`direction_error_cov`).
+    :func:`direction_error_cov`). ``saturated`` (N,) marks gyroscope samples flat at the
+    sensor's limit: a rotation through them is under-measured by any calibration, so its
+    transition is left out of the fit (and of the quality figure), but still predicted and shown.
     """
     if len(block_times) < 2:
         raise ImucalError(f"{len(block_times)} static block(s): the gyroscope needs at least two "
@@ -372,15 +384,28 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                           field="static blocks")
     warnings: list[str] = []
     u = gravity / np.linalg.norm(gravity, axis=1, keepdims=True)
-    u_prev, u_meas = u[:-1], u[1:]
     bias, bias_source = static_bias(w_raw, t, block_times, settings.bias)
-    tr = Transitions(w_raw, t, block_times)
+    tr_all = Transitions(w_raw, t, block_times)
+    excluded = np.zeros(len(tr_all), dtype=bool)
+    if saturated is not None and np.any(saturated):
+        cs = np.concatenate(([0], np.cumsum(saturated)))
+        excluded = (cs[tr_all.ends + 1] - cs[tr_all.starts]) > 0
+        if excluded.all():
+            raise ImucalError(f"all {len(excluded)} rotations between still poses pass through "
+                              "saturated gyroscope samples (flat at the sensor's limit): turn "
+                              "more slowly", source="gyroscope", field="rotations")
+        warnings.append(f"{int(excluded.sum())} of {len(excluded)} rotations between still "
+                        "poses pass through saturated gyroscope samples and are left out of "
+                        "the gyroscope fit")
+    keep = ~excluded
+    tr = tr_all if keep.all() else Transitions(w_raw, t, block_times, keep)
+    fit_prev, fit_meas = u[:-1][keep], u[1:][keep]
 
     if gyro_unit == "counts":
         if settings.nominal_scale:
             s0, how = float(settings.nominal_scale), "given sensitivity"
         else:
-            s0, how = _find_scale(tr, bias, u_prev, u_meas), "1-D search on the data (counts)"
+            s0, how = _find_scale(tr, bias, fit_prev, fit_meas), "1-D search on the data (counts)"
     else:
         s0, how = 1.0, "input in rad/s"
     have_nominal = gyro_unit != "counts" or bool(settings.nominal_scale)
@@ -394,18 +419,20 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         return gyro_model_of(theta, bias, s0)
 
     def res(theta: np.ndarray) -> np.ndarray:
-        return (u_meas - tr.predict(model_of(theta), u_prev)).ravel()
+        return (fit_meas - tr.predict(model_of(theta), fit_prev)).ravel()
 
     def jac(theta: np.ndarray) -> np.ndarray:
-        return tr.jacobian(model_of, theta, u_prev)
+        return tr.jacobian(model_of, theta, fit_prev)
 
     report = fit_tikhonov(res, jac, theta0, theta0, settings.lam, start_name="prior")
     model = model_of(report.theta)
-    q_model = tr.rotations(model)  # integrated once, used three times below
+    q_model = tr_all.rotations(model)  # integrated once, used three times below
     cov = report.cov
     if gravity_cov is not None:
-        R = to_matrix(q_model)
-        meat = direction_error_cov(gravity, gravity_cov, R)
+        meat = direction_error_cov(gravity, gravity_cov, to_matrix(q_model))
+        if not keep.all():
+            meat = (meat.select(keep) if isinstance(meat, FactoredCov)
+                    else np.asarray(meat)[np.ix_(np.repeat(keep, 3), np.repeat(keep, 3))])
         n, p = report.jac.shape
         # Each residual is the difference of two unit vectors: only its 2 components across
         # u_k carry error to first order, so a transition gives 2 degrees of freedom, not 3.
@@ -416,11 +443,12 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     if n_bias:
         std[9:12] /= s0
 
+    u_prev, u_meas = u[:-1], u[1:]  # every transition, the excluded ones too
     before = None
     if have_nominal:
         raw_model = SensorModel(T=np.eye(3), K=np.full(3, s0), b=np.zeros(3))
-        before = tr.predict(raw_model, u_prev)
-    after = rotate_inverse(q_model, u_prev)  # = tr.predict(model, u_prev)
+        before = tr_all.predict(raw_model, u_prev)
+    after = rotate_inverse(q_model, u_prev)  # = tr_all.predict(model, u_prev)
     angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
 
     if np.any(model.K <= 0):
@@ -430,7 +458,7 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                         "frame) are far from 1: check the gyroscope unit")
     if report.cost > report.cost_start * (1 + 1e-9):
         warnings.append("gyroscope fit ended with a higher cost than it started from")
-    per_step = tr.max_step_angle(model)
+    per_step = tr_all.max_step_angle(model)
     if per_step > np.radians(20.0):
         warnings.append(f"rotations too fast for the gyroscope's sample rate: up to "
                         f"{np.degrees(per_step):.0f} degrees between two samples; the "
@@ -439,14 +467,15 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     if small:
         warnings.append(f"{small} of {len(angle)} rotations between still poses are under 10 "
                         "degrees and carry little information about the gyroscope")
-    if len(u_meas) < 3:
-        warnings.append(f"only {len(u_meas)} rotations between still poses: the 9 gyroscope "
+    if len(fit_meas) < 3:
+        warnings.append(f"only {len(fit_meas)} rotations between still poses: the 9 gyroscope "
                         "parameters are barely determined; record more poses")
     return GyroFit(model=model, std=std, bias_source=bias_source, nominal_scale=s0,
                    nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
                    u_meas=u_meas, u_pred_before=before, u_pred_after=after,
-                   t_transition=np.column_stack([t[tr.starts], t[tr.ends]]),
-                   rotation_angle=np.radians(angle), static_bias=bias, warnings=warnings)
+                   t_transition=np.column_stack([t[tr_all.starts], t[tr_all.ends]]),
+                   rotation_angle=np.radians(angle), static_bias=bias, excluded=excluded,
+                   warnings=warnings)
 
 
 def direction_error_cov(gravity: np.ndarray, gravity_cov: np.ndarray | FactoredCov,

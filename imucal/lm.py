@@ -138,6 +138,17 @@ class FactoredCov:
         out = self.dense()
         return out if dtype is None else out.astype(dtype)
 
+    def select(self, keep: np.ndarray) -> FactoredCov:
+        """The covariance of the 3 x 3 blocks where ``keep`` (m,) is true, still factored: a
+        coupling block survives only between two kept blocks that were neighbours."""
+        keep = np.asarray(keep, bool)
+        idx = np.flatnonzero(keep)
+        U = self.U.reshape(len(self.diag), 3, -1)[idx].reshape(3 * len(idx), -1)
+        upper = None
+        if self.upper is not None and len(idx) > 1:
+            upper = np.where((np.diff(idx) == 1)[:, None, None], self.upper[idx[:-1]], 0.0)
+        return FactoredCov(U, self.C, self.diag[idx], upper)
+
     def trace(self) -> float:
         low = float(np.einsum("ij,ij->", self.U @ self.C, self.U))
         return low + float(np.einsum("kii->", self.diag))

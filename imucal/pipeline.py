@@ -86,13 +86,14 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         warnings.append(f"excluded {excluded} static block(s) holding saturated accelerometer "
                         "samples (flat at the sensor's limit)")
     _check_blocks(session, det, settings)
+    gyro_sat = None
     if session.has_gyro:
-        sat = saturated_mask(session.gyro)
-        if sat.any():
-            first = float(session.t_gyro[np.argmax(sat)])
-            warnings.append(f"the gyroscope is saturated (flat at its limit) in {int(sat.sum())} "
-                            f"samples, first at t = {first:.2f} s: rotations through them are "
-                            "under-measured; turn more slowly")
+        gyro_sat = saturated_mask(session.gyro)
+        if gyro_sat.any():
+            first = float(session.t_gyro[np.argmax(gyro_sat)])
+            warnings.append(f"the gyroscope is saturated (flat at its limit) in "
+                            f"{int(gyro_sat.sum())} samples, first at t = {first:.2f} s: "
+                            "rotations through them are under-measured; turn more slowly")
     block_times = np.column_stack([session.t_acc[det.blocks[:, 0]],
                                    session.t_acc[det.blocks[:, 1] - 1]])
 
@@ -119,7 +120,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
             gyro_fit = calibrate_gyroscope(session.gyro, session.t_gyro, block_times[b0:b1],
                                            acc_fit.model.apply(det.means[b0:b1]),
                                            session.gyro_unit, settings.gyro,
-                                           block_mean_cov(session.acc, blocks, acc_fit))
+                                           block_mean_cov(session.acc, blocks, acc_fit),
+                                           saturated=gyro_sat)
         n_orient = distinct_orientations(det.means[b0:b1] - acc_fit.model.b)
         seg = Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
                       t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,

@@ -80,7 +80,8 @@ calibration/segment_<i>/accelerometer        static     AnyValues: T (9, row-maj
                                                         n_blocks, orientations
 calibration/segment_<i>/gyroscope            static     AnyValues: T, K, b, params, std,
                                                         param_names, lambda, bias_source,
-                                                        nominal_scale, transitions, cost_start,
+                                                        nominal_scale, transitions,
+                                                        transitions_excluded, cost_start,
                                                         cost_end
 calibration/quality                          static     AnyValues: static_norm_rms_mg_before|after,
                                                         sample_norm_rms_mg_before|after,
@@ -558,7 +559,9 @@ def _log_results(result: Result, rec: rr.RecordingStream) -> None:
                 T=g.model.T.ravel(), K=g.model.K, b=g.model.b, params=gyro_theta(g.model),
                 std=g.std, param_names=names, **{"lambda": float(g.lam)},
                 bias_source=g.bias_source, nominal_scale=float(g.nominal_scale),
-                transitions=int(len(g.u_meas)), cost_start=float(g.report.cost_start),
+                transitions=int(len(g.u_meas)),
+                transitions_excluded=int(0 if g.excluded is None else g.excluded.sum()),
+                cost_start=float(g.report.cost_start),
                 cost_end=float(g.report.cost)), static=True)
     ga = q.gravity_angle_rms_deg or (None, None)
     rec.log(P.QUALITY, rr.AnyValues(
