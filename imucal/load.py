@@ -450,11 +450,14 @@ def _read_mat5(path: Path) -> _Variables:
     from .mat5_check import CorruptMat, check_mat5
 
     data = path.read_bytes()
+    inflated = io.BytesIO()
     try:
-        check_mat5(data)  # scipy crashes the process on some corrupt files
+        check_mat5(data, inflated)  # scipy crashes the process on some corrupt files
     except CorruptMat as e:
         raise ImucalError(f"corrupt MATLAB v5 file: {e}", source=_name(path)) from None
-    raw = loadmat(io.BytesIO(data))
+    del data
+    inflated.seek(0)
+    raw = loadmat(inflated)  # the checked file, its variables already inflated by the check
     found = {}
     for name, value in raw.items():
         if name.startswith("__"):
@@ -1019,7 +1022,8 @@ def _settle_time(part: _Part, opts: _Options) -> tuple[np.ndarray, np.ndarray]:
                           f"the rate {opts.rate:g} Hz")
         time = None
     if time is not None:
-        t = time * TIME_UNITS[_time_unit(part, opts)]
+        with np.errstate(over="ignore", invalid="ignore"):  # non-finite times are refused below
+            t = time * TIME_UNITS[_time_unit(part, opts)]
         if opts.rate is not None:
             opts.notes.append(f"{label} timestamps taken from {part.time_label} of {source}; "
                               "the given rate is not used")

@@ -2,6 +2,8 @@
 either succeeds or raises the product's own error (a few thousand cases, seeded)."""
 
 import io
+import struct
+import zlib
 from pathlib import Path
 
 import h5py
@@ -21,6 +23,10 @@ def _corpus(shared, tmp_path) -> dict[str, bytes]:
     buf = io.BytesIO()
     scipy.io.savemat(buf, {"acc": m[:, 1:4], "gyro": m[:, 4:], "t": m[:, 0]})
     files["v5.mat"] = buf.getvalue()
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, {"acc": m[:, 1:4], "gyro": m[:, 4:], "t": m[:, 0]},
+                     do_compression=True)
+    files["v5z.mat"] = buf.getvalue()
     p = tmp_path / "v73.mat"
     with h5py.File(p, "w") as f:
         f["acc"] = m[:, 1:4].T
@@ -77,3 +83,41 @@ def test_mutated_files_raise_only_imucal_errors(tmp_path):
             assert "\n" not in str(e) and "fuzz.bin" in str(e), str(e)
             n_err += 1
     assert n_ok + n_err == 2500 and n_err > 100
+
+
+def test_mutated_compressed_mat_variables_raise_only_imucal_errors(tmp_path):
+    """Mutations inside a compressed MAT v5 variable, compressed again, reach the structural
+    check only after inflating: the check, not scipy, must catch them (scipy crashes the
+    process on some), and the variables it hands on are the checked ones."""
+    m = np.random.default_rng(1).normal(0, 0.01, (300, 3)) + [0, 0, 1]
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, {"acc": m, "gyro": m - [0, 0, 1], "t": np.arange(300) / 100.0},
+                     do_compression=True)
+    data = buf.getvalue()
+    elements, pos = [], 128
+    while pos + 8 <= len(data):
+        kind, n = struct.unpack("<II", data[pos:pos + 8])
+        elements.append((pos, n))
+        pos += 8 + n
+    rng = np.random.default_rng(2024)
+    target = tmp_path / "fuzz.bin"
+    outcomes = {"ok": 0, "error": 0}
+    for _ in range(600):
+        pos, n = elements[int(rng.integers(0, len(elements)))]
+        inner = bytearray(zlib.decompress(data[pos + 8:pos + 8 + n]))
+        for _ in range(int(rng.integers(1, 4))):
+            i = int(rng.integers(0, len(inner) - 4))
+            if rng.random() < 0.5:
+                inner[i] = int(rng.integers(0, 256))
+            else:  # a tag-sized field: a type code or a size
+                inner[i:i + 4] = struct.pack("<I", int(rng.choice(
+                    [0, 1, 8, 9, 14, 15, 2**31, 2**32 - 1, int(rng.integers(0, 2**32))])))
+        z = zlib.compress(bytes(inner))
+        target.write_bytes(data[:pos] + struct.pack("<II", 15, len(z)) + z + data[pos + 8 + n:])
+        try:
+            load_session(target, rate=100.0)
+            outcomes["ok"] += 1
+        except imucal.ImucalError as e:
+            assert "\n" not in str(e) and "fuzz.bin" in str(e), str(e)
+            outcomes["error"] += 1
+    assert outcomes["error"] > 100 and outcomes["ok"] > 10, outcomes
