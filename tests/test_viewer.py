@@ -268,23 +268,44 @@ def test_envelope_keeps_every_peak():
     np.testing.assert_array_equal(x1, x[:50, 0])
 
 
-def test_long_session_axes_are_decimated_magnitudes_are_not(tmp_path):
+def test_long_session_magnitudes_full_rate_when_still_envelope_between(tmp_path):
     s, _ = make_session(poses=50, seed=3, acc_rate=1000.0, gyro_rate=140.0)
     assert len(s.t_acc) > DECIMATE_ABOVE
     r = imucal.calibrate(s)
     path = tmp_path / "long.rrd"
     rows = save_recording(r, path)
-    assert rows[P.ACC_MAGNITUDE] == len(s.t_acc)
-    assert rows[P.GYRO_MAGNITUDE] == len(s.t_gyro)
     assert rows[P.ACC_RAW] <= ENVELOPE_ROWS and rows[P.DETECTOR_STATISTIC] <= ENVELOPE_ROWS
     _, raw = rb.scalars(path, P.ACC_RAW)
     np.testing.assert_array_equal(raw.max(axis=0), s.acc.max(axis=0))
     np.testing.assert_array_equal(raw.min(axis=0), s.acc.min(axis=0))
-    # Size model: ~28 bytes per magnitude row (time, 2 scalars, offset) plus the envelopes,
-    # whose size does not grow. At 60 min (3.6 M + 0.5 M samples) it stays under 150 MB.
-    budget = 30 * (len(s.t_acc) + len(s.t_gyro)) + 20e6
-    assert 30 * (3_600_000 + 504_000) + 20e6 < 150e6
-    assert path.stat().st_size < budget
+
+    still = np.zeros(len(s.t_acc), bool)
+    for a, b in r.detection.blocks:
+        still[a:b] = True
+    t, v = rb.scalars(path, P.ACC_MAGNITUDE)
+    assert rows[P.ACC_MAGNITUDE] == len(t) < len(s.t_acc)
+    assert np.all(np.diff(t) >= 0)
+    bt = r.block_times  # [first, last] sample time of each block
+    k = np.clip(np.searchsorted(bt[:, 0], t + 1e-7, side="right") - 1, 0, len(bt) - 1)
+    in_block = (t >= bt[k, 0] - 1e-7) & (t <= bt[k, 1] + 1e-7)
+    # Every still sample at full rate, exactly; nothing else inside a still block.
+    assert in_block.sum() == still.sum()
+    np.testing.assert_array_equal(v[in_block, 1], r.calibrated.acc_norm[still])
+    # Between the blocks a min/max envelope: far fewer rows, every peak kept.
+    moving = r.calibrated.acc_norm[~still]
+    assert (~in_block).sum() <= ENVELOPE_ROWS < (~still).sum()
+    assert v[~in_block, 1].max() == moving.max() and v[~in_block, 1].min() == moving.min()
+    raw_moving = np.linalg.norm(r.whole.nominal.to_nominal(s.acc[~still]), axis=1)
+    np.testing.assert_allclose(v[~in_block, 0].max(), raw_moving.max() * r.whole.g_out,
+                               rtol=1e-12)
+    tg, vg = rb.scalars(path, P.GYRO_MAGNITUDE)
+    assert len(tg) == rows[P.GYRO_MAGNITUDE] and len(tg) <= len(s.t_gyro)
+    assert vg[:, 1].max() == r.calibrated.gyro_norm.max()
+    # Size model: ~28 bytes per full-rate magnitude row plus envelopes that do not grow
+    # with the session: a long recording is mostly motion and stays small.
+    kg = np.searchsorted(bt[:, 0], s.t_gyro, side="right") - 1
+    n_gyro_still = np.count_nonzero((kg >= 0) & (s.t_gyro <= bt[np.maximum(kg, 0), 1]))
+    assert path.stat().st_size < 30 * (still.sum() + n_gyro_still) + 25e6
 
 
 def test_two_segments_accelerometer_only_and_raw_counts(tmp_path):

@@ -5,6 +5,9 @@ becomes two rows, which hold, per column, the bucket's minimum and maximum in th
 occur (so a rise stays a rise). The two rows are stamped with the times of the bucket's first
 and middle sample: a peak is drawn at most one bucket (``len / (max_rows / 2)`` samples) away
 from where it happened, and never lost. Vectorised: no loop over buckets.
+
+:func:`detail_envelope` keeps chosen samples (the still blocks, where the method looks at the
+signal) at full rate and decimates only the rest, in buckets that never straddle a kept stretch.
 """
 
 from __future__ import annotations
@@ -43,3 +46,51 @@ def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, n
     tt = np.column_stack([t[starts], t[(starts + last + 1) // 2]])
     out = v.reshape(-1, k)
     return tt.ravel(), (out[:, 0] if squeeze else out)
+
+
+def detail_envelope(t: np.ndarray, x: np.ndarray, keep: np.ndarray, max_rows: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Samples where ``keep`` at full rate; every run of the others as a min/max envelope (at
+    most about ``max_rows`` rows over all runs), merged in time order.
+
+    Each run of dropped samples is cut into buckets of one size, its last bucket padded by
+    repeating the run's last sample (which changes neither its min nor its max), so no bucket
+    reaches across a kept stretch and every row is stamped at a time inside its own run.
+    """
+    keep = np.asarray(keep, bool)
+    x2 = x[:, None] if x.ndim == 1 else x
+    step = np.diff(np.concatenate(([1], keep.view(np.int8), [1])))
+    starts, ends = np.flatnonzero(step == -1), np.flatnonzero(step == 1)  # runs of ~keep
+    lengths = ends - starts
+    n_drop = int(lengths.sum())
+    budget = max_rows // 2 - len(starts)  # buckets left after one partial bucket per run
+    if n_drop == 0 or budget <= 0 or n_drop <= max_rows:
+        return t, x
+    size = max(-(-n_drop // budget), 1)
+    n_buckets = -(-lengths // size)  # per run
+    padded = n_buckets * size
+    # Gather index of the padded runs: position j of run r is sample starts[r] + min(j, L_r - 1)
+    run_of = np.repeat(np.arange(len(starts)), padded)
+    j = np.arange(int(padded.sum())) - np.repeat(np.cumsum(padded) - padded, padded)
+    idx = starts[run_of] + np.minimum(j, lengths[run_of] - 1)
+    k = x2.shape[1]
+    xb = x2[idx].reshape(-1, size, k)
+    i_min = np.argmin(xb, axis=1)
+    i_max = np.argmax(xb, axis=1)
+    v = np.empty((len(xb), 2, k), dtype=x2.dtype)
+    v[:, 0] = np.take_along_axis(xb, np.minimum(i_min, i_max)[:, None, :], axis=1)[:, 0]
+    v[:, 1] = np.take_along_axis(xb, np.maximum(i_min, i_max)[:, None, :], axis=1)[:, 0]
+    first = idx[::size]
+    middle = idx[size // 2::size]
+    te = np.column_stack([t[first], t[middle]]).ravel()
+    tk = t[keep]
+    # Merge the two time-sorted sets: each envelope row goes after the kept samples before it
+    # (kept and dropped samples never share a time).
+    at = np.searchsorted(tk, te) + np.arange(len(te))
+    is_kept = np.ones(len(tk) + len(te), bool)
+    is_kept[at] = False
+    tt = np.empty(len(is_kept))
+    tt[at], tt[is_kept] = te, tk
+    out = np.empty((len(is_kept), k), dtype=x2.dtype)
+    out[at], out[is_kept] = v.reshape(-1, k), x2[keep]
+    return tt, (out[:, 0] if x.ndim == 1 else out)

@@ -14,10 +14,10 @@ LAMBDA = "lambda"  # sequence: index into the L-curve's lambda grid (value in LA
 ITERATION = "iteration"  # sequence: accepted Levenberg-Marquardt step, 0 = the start
 
 # Signals on TIME
-ACC_MAGNITUDE = "imu/accelerometer/magnitude"  # [raw, calibrated], full rate
+ACC_MAGNITUDE = "imu/accelerometer/magnitude"  # [raw, calibrated], full rate when still
 ACC_RAW = "imu/accelerometer/raw"  # [x, y, z], raw unit, min/max envelope when long
 ACC_CALIBRATED = "imu/accelerometer/calibrated"  # [x, y, z]
-GYRO_MAGNITUDE = "imu/gyroscope/magnitude"  # [raw, calibrated], rad/s, full rate
+GYRO_MAGNITUDE = "imu/gyroscope/magnitude"  # [raw, calibrated], rad/s, as acc
 GYRO_RAW = "imu/gyroscope/raw"
 GYRO_CALIBRATED = "imu/gyroscope/calibrated"
 

@@ -94,7 +94,8 @@ calibration/info                             static     AnyValues: source, sha25
 
 (*) Signals longer than ``DECIMATE_ABOVE`` samples are logged as a min/max envelope of at most
 ``ENVELOPE_ROWS`` rows (:mod:`viewer.decimate`: every peak kept, drawn at most one bucket from
-where it happened). The magnitudes are always logged at full rate.
+where it happened). The magnitudes are logged at full rate, except that a long signal's
+stretches between still blocks become such an envelope too (the still blocks stay at full rate).
 
 The gyroscope entities exist only for a session with a gyroscope; the L-curve and ``lambda``
 entities only when lambda was chosen by the L-curve (not fixed).
@@ -122,7 +123,7 @@ from imucal.models import (
 )
 
 from . import paths as P
-from .decimate import envelope
+from .decimate import detail_envelope, envelope
 
 if TYPE_CHECKING:
     from imucal.accel import AccFit, LCurve
@@ -242,8 +243,10 @@ def _log_signals(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) 
     s, cal = result.session, result.calibrated
     unit = cal.acc_unit
     raw_mag = np.linalg.norm(result.whole.nominal.to_nominal(s.acc), axis=1) * result.whole.g_out
-    rows[P.ACC_MAGNITUDE] = _send_scalars(rec, P.ACC_MAGNITUDE, s.t_acc,
-                                          np.column_stack([raw_mag, cal.acc_norm]))
+    still = np.zeros(len(s.t_acc), bool)
+    still[_block_samples(result.detection.blocks)] = True
+    t, v = _magnitudes(s.t_acc, np.column_stack([raw_mag, cal.acc_norm]), still)
+    rows[P.ACC_MAGNITUDE] = _send_scalars(rec, P.ACC_MAGNITUDE, t, v)
     _style_lines(rec, P.ACC_MAGNITUDE, [f"raw |a| ({unit}, nominal)", f"calibrated |a| ({unit})"],
                  [RAW, CALIBRATED])
     for path, x, label in ((P.ACC_RAW, s.acc, s.acc_unit), (P.ACC_CALIBRATED, cal.acc, unit)):
@@ -254,8 +257,13 @@ def _log_signals(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) 
     if not s.has_gyro or cal.gyro is None:
         return
     raw_mag = np.linalg.norm(gyro_nominal(result), axis=1)
-    rows[P.GYRO_MAGNITUDE] = _send_scalars(rec, P.GYRO_MAGNITUDE, s.t_gyro,
-                                           np.column_stack([raw_mag, cal.gyro_norm]))
+    bt = result.block_times
+    lo = np.searchsorted(s.t_gyro, bt[:, 0], side="left")
+    hi = np.searchsorted(s.t_gyro, bt[:, 1], side="right")
+    still = np.zeros(len(s.t_gyro), bool)
+    still[_block_samples(np.column_stack([lo, hi]))] = True
+    t, v = _magnitudes(s.t_gyro, np.column_stack([raw_mag, cal.gyro_norm]), still)
+    rows[P.GYRO_MAGNITUDE] = _send_scalars(rec, P.GYRO_MAGNITUDE, t, v)
     _style_lines(rec, P.GYRO_MAGNITUDE, ["raw |w| (rad/s, nominal)", "calibrated |w| (rad/s)"],
                  [RAW, CALIBRATED])
     for path, x, label in ((P.GYRO_RAW, s.gyro, s.gyro_unit), (P.GYRO_CALIBRATED, cal.gyro,
@@ -264,6 +272,23 @@ def _log_signals(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) 
                 else (s.t_gyro, x))
         rows[path] = _send_scalars(rec, path, t, v)
         _style_lines(rec, path, [f"{c} ({label})" for c in "xyz"], XYZ)
+
+
+def _block_samples(blocks: np.ndarray) -> np.ndarray:
+    """Indices of the samples of [start, end) blocks (one vector operation)."""
+    blocks = np.asarray(blocks, np.int64).reshape(-1, 2)
+    lengths = np.maximum(blocks[:, 1] - blocks[:, 0], 0)
+    offsets = np.repeat(blocks[:, 0] - np.cumsum(lengths) + lengths, lengths)
+    return offsets + np.arange(int(lengths.sum()))
+
+
+def _magnitudes(t: np.ndarray, v: np.ndarray, still: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """A long signal's magnitudes: full rate in the still blocks, where the calibration is
+    judged to the milli-g, and a min/max envelope in between, where only the swings matter."""
+    if len(t) <= DECIMATE_ABOVE:
+        return t, v
+    return detail_envelope(t, v, still, ENVELOPE_ROWS)
 
 
 def _log_detector(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
