@@ -413,18 +413,12 @@ def _matrix_rows(q: Quat, out: np.ndarray) -> np.ndarray:
     xs, ys, zs = x * s, y * s, z * s
     b = s  # s is no longer needed
     e = [out[:, i] for i in range(9)]
-    np.multiply(x, ys, out=a)  # xy
-    np.multiply(w, zs, out=b)  # wz
-    np.subtract(a, b, out=e[1])
-    np.add(a, b, out=e[3])
-    np.multiply(x, zs, out=a)  # xz
-    np.multiply(w, ys, out=b)  # wy
-    np.add(a, b, out=e[2])
-    np.subtract(a, b, out=e[6])
-    np.multiply(y, zs, out=a)  # yz
-    np.multiply(w, xs, out=b)  # wx
-    np.subtract(a, b, out=e[5])
-    np.add(a, b, out=e[7])
+    # Off the diagonal: entries (1, 3) = xy -/+ wz, (6, 2) = xz -/+ wy, (5, 7) = yz -/+ wx.
+    for u, us, ws, minus, plus in ((x, ys, zs, 1, 3), (x, zs, ys, 6, 2), (y, zs, xs, 5, 7)):
+        np.multiply(u, us, out=a)
+        np.multiply(w, ws, out=b)
+        np.subtract(a, b, out=e[minus])
+        np.add(a, b, out=e[plus])
     np.multiply(x, xs, out=xs)  # xx
     np.multiply(y, ys, out=ys)  # yy
     np.multiply(z, zs, out=zs)  # zz
