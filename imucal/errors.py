@@ -21,3 +21,8 @@ class ImucalError(Exception):
         parts = [p for p in (source, field) if p]
         text = ": ".join([*parts, message])
         super().__init__(" ".join(text.split()))
+
+
+def plural(n: int, noun: str) -> str:
+    """``"1 gap"``, ``"3 gaps"``: counts in messages."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"

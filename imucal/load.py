@@ -1,8 +1,9 @@
 """Read a recording into a :class:`~imucal.session.Session` (method.md §0).
 
-The format is recognised from the file's content, never from its extension (the imu_tk example
-``xsens_acc.mat`` is plain text): MATLAB v5 ``.mat``, MATLAB v7.3 / HDF5, Parquet, and otherwise
-text (CSV, TSV, ``;``-separated or whitespace-separated, with or without a header).
+:mod:`imucal.readers` recognises the format and reads the file into a table of columns or named
+variables; this module decides which of them hold time, the accelerometer and the gyroscope
+(by name, by position or as the user says), settles the time base and the units, and bridges
+short runs of missing samples.
 
 Every problem a user can cause becomes an :class:`~imucal.errors.ImucalError` naming the file,
 the field and what was expected; exceptions of the parsing libraries never escape.
@@ -11,24 +12,19 @@ the field and what was expected; exceptions of the parsing libraries never escap
 from __future__ import annotations
 
 import hashlib
-import io
 import math
 import os
 import re
-import sys
-import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from imucal.errors import ImucalError
+from imucal.errors import ImucalError, plural
+from imucal.file_contents import Table, Variables
+from imucal.readers import display_name, read_file
 from imucal.session import Session
-
-if TYPE_CHECKING:
-    import polars as pl
 
 __all__ = ["load_session"]
 
@@ -42,17 +38,6 @@ ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 AXES = {"acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
 LABELS = {"acc": "accelerometer", "gyro": "gyroscope"}
 
-_MAGIC_MAT5 = b"MATLAB 5.0 MAT-file"
-_MAGIC_HDF5 = b"\x89HDF\r\n\x1a\n"
-_MAGIC_PARQUET = b"PAR1"
-# Formats people try that we do not read: name them instead of calling them garbled text.
-_UNSUPPORTED_MAGIC = {
-    b"PK\x03\x04": "a zip archive (or an Excel .xlsx workbook); export it as CSV",
-    b"\x1f\x8b": "gzip-compressed; decompress it first",
-    b"\x93NUMPY": "a NumPy .npy file; save it as CSV or .mat",
-    b"\xff\xfe": "UTF-16 text; save it as UTF-8",
-    b"\xfe\xff": "UTF-16 text; save it as UTF-8",
-}
 _CHUNK = 1 << 20
 
 # --- unit spellings (arguments and hints in column names share one table) -------------------
@@ -158,31 +143,7 @@ def _unit_for_role(role: str, unit: str | None) -> str | None:
     return None
 
 
-# --- what the readers produce ------------------------------------------------------------------
-
-
-@dataclass
-class _Table:
-    """Columns of a text or Parquet file, or one matrix; converted to float64 on demand."""
-
-    source: str
-    names: list[str] | None  # None: no header, columns are known by position
-    n_cols: int
-    column: Callable[[int], np.ndarray]
-    seconds_cols: frozenset[int] = frozenset()  # date-times already turned into seconds
-    shared_time: np.ndarray | None = None  # a separate time vector next to a .mat matrix
-    shared_time_name: str = ""
-
-    def label(self, i: int) -> str:
-        return f"column {self.names[i]!r}" if self.names else f"column {i + 1}"
-
-
-@dataclass
-class _Variables:
-    """Named numeric variables of a .mat (v5 or v7.3) file, as 2-D float64 arrays."""
-
-    source: str
-    arrays: dict[str, np.ndarray]
+# --- what the loader builds from them -------------------------------------------------------------
 
 
 @dataclass
@@ -235,7 +196,7 @@ def load_session(
     Raises :class:`ImucalError` for any bad input.
     """
     paths = [Path(path)] + ([Path(gyro_path)] if gyro_path is not None else [])
-    source = " + ".join(_name(p) for p in paths)
+    source = " + ".join(display_name(p) for p in paths)
     opts = _Options(
         rate=_check_rate(rate, source),
         time_unit=_check_choice(time_unit, _TIME_UNIT_KEYS, "time_unit", source),
@@ -247,17 +208,17 @@ def load_session(
         _check_file(p)
 
     if gyro_path is None:
-        parts = _extract(_read_file(paths[0]), ("acc", "gyro"), opts)
+        parts = _extract(read_file(paths[0]), ("acc", "gyro"), opts)
         if "gyro" not in parts and not acc_only:
             raise ImucalError("found an accelerometer and no gyroscope; give the gyroscope's "
                               "file with --gyro FILE, or --acc-only to calibrate the "
                               "accelerometer alone", source=source, field="columns")
         if acc_only:
             parts.pop("gyro", None)
-            opts.notes.append(f"accelerometer only (--acc-only): {_name(paths[0])}")
+            opts.notes.append(f"accelerometer only (--acc-only): {display_name(paths[0])}")
     else:
-        parts = _extract(_read_file(paths[0]), ("acc",), opts)
-        parts.update(_extract(_read_file(paths[1]), ("gyro",), opts))
+        parts = _extract(read_file(paths[0]), ("acc",), opts)
+        parts.update(_extract(read_file(paths[1]), ("gyro",), opts))
 
     acc, t_acc = _settle_time(parts["acc"], opts)
     gyro = t_gyro = None
@@ -351,16 +312,8 @@ def _columns_for(opts: _Options, sensors: tuple[str, ...], source: str) -> dict[
     return mine
 
 
-def _name(path: Path) -> str:
-    return path.name or str(path)
-
-
-def _count(n: int, noun: str) -> str:
-    return f"{n} {noun}{'' if n == 1 else 's'}"
-
-
 def _check_file(path: Path) -> None:
-    name = _name(path)
+    name = display_name(path)
     try:
         st = path.stat()
     except FileNotFoundError:
@@ -386,367 +339,12 @@ def _sha256(paths: list[Path]) -> str:
     return digest.hexdigest()
 
 
-# --- readers -------------------------------------------------------------------------------------
-
-
-def _read_file(path: Path) -> _Table | _Variables:
-    """Read any supported format; library exceptions become one-line ImucalErrors."""
-    source = _name(path)
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(1024)
-        if head.startswith(_MAGIC_MAT5):
-            return _read_mat5(path)
-        if head[:8] == _MAGIC_HDF5 or head[512:520] == _MAGIC_HDF5:
-            return _read_hdf5(path)
-        if head[:4] == _MAGIC_PARQUET:
-            return _read_parquet(path)
-        for magic, what in _UNSUPPORTED_MAGIC.items():
-            if head.startswith(magic):
-                raise ImucalError(f"unsupported format: {what}", source=source)
-        if b"\x00" in head:
-            raise ImucalError("unknown binary format; expected CSV/TSV/text, MATLAB .mat (v5 or "
-                              "v7.3/HDF5) or Parquet", source=source)
-        return _read_text(path.read_bytes(), source)
-    except ImucalError:
-        raise
-    except MemoryError:
-        raise ImucalError("not enough memory to load the file", source=source) from None
-    except _parser_errors() as exc:  # any parser failure is a problem with the file, in one line
-        raise ImucalError(f"cannot read the file: {_one_line(exc)}", source=source) from None
-
-
-def _parser_errors() -> tuple[type[BaseException], ...]:
-    """What a failing parser raises: polars reports some malformed input by panicking, and its
-    PanicException is a BaseException. Looked up when an exception arrives (that is when an
-    ``except`` clause is evaluated), as polars is imported only by the readers that need it."""
-    exceptions = sys.modules.get("polars.exceptions")
-    return (Exception,) if exceptions is None else (Exception, exceptions.PanicException)
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    first = text[0] if text else ""
-    return f"{type(exc).__name__}: {first[:200]}" if first else type(exc).__name__
-
-
-def _as_matrix(value: object) -> np.ndarray | None:
-    """A real numeric array as 2-D float64, or None for strings, structs, cells, logicals."""
-    if not isinstance(value, np.ndarray) or value.dtype.kind not in "iuf" or value.size == 0:
-        return None
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim == 1:
-        arr = arr[:, None]
-    if arr.ndim != 2:
-        arr = np.squeeze(arr)
-        if arr.ndim != 2:
-            return None
-    return arr
-
-
-def _read_mat5(path: Path) -> _Variables:
-    from scipy.io import loadmat
-
-    from .mat5_check import CorruptMat, check_mat5
-
-    data = path.read_bytes()
-    inflated = io.BytesIO()
-    try:
-        check_mat5(data, inflated)  # scipy crashes the process on some corrupt files
-    except CorruptMat as e:
-        raise ImucalError(f"corrupt MATLAB v5 file: {e}", source=_name(path)) from None
-    del data
-    inflated.seek(0)
-    raw = loadmat(inflated)  # the checked file, its variables already inflated by the check
-    found = {}
-    for name, value in raw.items():
-        if name.startswith("__"):
-            continue
-        matrix = _as_matrix(value)
-        if matrix is not None:
-            found[name] = matrix
-    return _Variables(path.name, found)
-
-
-def _read_hdf5(path: Path) -> _Variables:
-    import h5py
-
-    found = {}
-    with h5py.File(path, "r") as f:
-        for name, item in f.items():
-            if not isinstance(item, h5py.Dataset) or name.startswith("#"):
-                continue
-            cls = item.attrs.get("MATLAB_class")
-            cls = cls.decode() if isinstance(cls, bytes) else cls
-            if cls in ("char", "logical", "cell", "struct") or "MATLAB_empty" in item.attrs:
-                continue
-            matrix = _as_matrix(item[()])
-            if matrix is None:
-                continue
-            # MATLAB writes column-major, so h5py sees every matrix transposed.
-            found[name] = matrix.T if cls is not None else matrix
-    return _Variables(path.name, found)
-
-
-def _read_parquet(path: Path) -> _Table:
-    import polars as pl
-
-    frame = pl.read_parquet(path)
-    seconds = set()
-    cols = []
-    for i, name in enumerate(frame.columns):
-        s = frame.get_column(name)
-        if s.dtype == pl.Datetime:
-            s = s.dt.epoch("us").cast(pl.Float64) / 1e6
-            seconds.add(i)
-        elif s.dtype == pl.Duration:
-            s = s.dt.total_microseconds().cast(pl.Float64) / 1e6
-            seconds.add(i)
-        cols.append(s)
-    names = list(frame.columns)
-
-    def column(i: int) -> np.ndarray:
-        return _series_to_float(cols[i], f"column {names[i]!r}", path.name, None)
-
-    return _Table(path.name, names, len(names), column, frozenset(seconds))
-
-
-# --- text ----------------------------------------------------------------------------------------
-
-
-def _read_text(data: bytes, source: str) -> _Table:
-    data = data.removeprefix(b"\xef\xbb\xbf")
-    start, end, comments = _skip_preamble(data)
-    if start is None:
-        raise ImucalError("no data: the file holds only blank or comment lines", source=source)
-    first = data[start:end].decode("utf-8", errors="replace")
-    sep = _sniff_separator(first)
-    fields = _split_fields(first, sep)
-    names: list[str] | None = None
-    if any(tok and not _is_number(tok) for tok in fields):
-        names = [tok.strip().strip("\"'") for tok in fields]
-        body_start = end + 1
-    else:
-        body_start = start
-        names = _commented_header(comments, sep, len(fields))
-    body = data[body_start:]
-    first_line = data.count(b"\n", 0, body_start) + 1  # 1-based file line of the body's start
-    decimal_comma = sep == ";" and b"," in body[:4096]  # "1,5;2,0": European spreadsheets
-    return _parse_body(body, sep, names, decimal_comma, first_line, source)
-
-
-def _skip_preamble(data: bytes) -> tuple[int | None, int, list[str]]:
-    """Offsets of the first content line, skipping blank lines and #, % or // comments."""
-    pos, comments = 0, []
-    while pos < len(data):
-        end = data.find(b"\n", pos)
-        end = len(data) if end < 0 else end
-        line = data[pos:end].strip()
-        if line.startswith((b"#", b"%", b"//")):
-            comments.append(line.decode("utf-8", errors="replace"))
-        elif line:
-            return pos, end, comments
-        pos = end + 1
-    return None, 0, comments
-
-
-def _sniff_separator(line: str) -> str:
-    for sep in (",", "\t", ";"):
-        if sep in line:
-            return sep
-    return " "  # any run of spaces or tabs
-
-
-def _split_fields(line: str, sep: str) -> list[str]:
-    return line.split() if sep == " " else [tok.strip() for tok in line.strip("\r\n").split(sep)]
-
-
-def _is_number(token: str) -> bool:
-    try:
-        float(token.strip().strip("\"'").replace(",", "."))
-    except ValueError:
-        return False
-    return True
-
-
-def _commented_header(comments: list[str], sep: str, n_fields: int) -> list[str] | None:
-    """Use "# t ax ay az" above headerless data (numpy.savetxt's style) as the header."""
-    if not comments:
-        return None
-    fields = _split_fields(comments[-1].lstrip("#%/").strip(), sep)
-    if len(fields) == n_fields and all(fields) and not any(_is_number(f) for f in fields):
-        return fields
-    return None
-
-
-def _parse_body(body: bytes, sep: str, names: list[str] | None, decimal_comma: bool,
-                first_line: int, source: str) -> _Table:
-    table = _parse_fast(body, sep, names, decimal_comma, source)
-    if table is None:
-        table = _parse_careful(body, sep, names, decimal_comma, first_line, source)
-    return table
-
-
-# The bytes of a plain numeric table besides its separator. Anything else goes the careful way,
-# which reads some of it differently from numpy: it strips quotes, takes "NA" or "null" as
-# missing, and keeps a non-ASCII blank inside a field where numpy would split on it.
-_NUMBER_BYTES = b"0123456789.eE+- \t\r\n"
-
-
-def _parse_fast(body: bytes, sep: str, names: list[str] | None, decimal_comma: bool,
-                source: str) -> _Table | None:
-    """Read a plain numeric table with numpy's C reader; None unless every row is complete and
-    every field a number, so that the careful path can name the line that is not.
-
-    numpy takes ~45 ms for 50k rows of 4 and spares a plain text file the import of polars
-    (~0.14 s CPU). On the bytes let through, it splits rows and fields as the careful path does
-    (runs of blanks, or the separator with blanks around a field; blank lines skipped) and
-    rounds each number correctly, as polars does, so the values are the same to the bit.
-    """
-    if decimal_comma:  # "1,5": a field with two commas is no number either way
-        body = body.replace(b",", b".")
-    allowed = _NUMBER_BYTES if sep == " " else _NUMBER_BYTES + sep.encode()
-    if body.translate(None, allowed) or not body.strip():
-        return None
-    if b"\r" in body and body.count(b"\r") != body.count(b"\r\n"):
-        return None  # a lone CR ends a line for numpy; the careful path deletes it
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")  # e.g. "input contained no data"
-            matrix = np.loadtxt(io.BytesIO(body), dtype=np.float64, comments=None,
-                                delimiter=None if sep == " " else sep, ndmin=2,
-                                encoding="ascii")
-    except Exception:  # a ragged row, an empty field, a malformed number: go the careful way
-        return None
-    n_rows, n_cols = matrix.shape
-    if n_rows == 0 or (names is not None and n_cols != len(names)):
-        return None
-    return _Table(source, names, n_cols, lambda i: matrix[:, i])
-
-
-def _parse_careful(body: bytes, sep: str, names: list[str] | None, decimal_comma: bool,
-                   first_line: int, source: str) -> _Table:
-    """Check the shape of every row, then read strings and convert column by column, so a
-    ragged row or a bad field is reported with its line number."""
-    import polars as pl
-
-    whitespace = sep == " "
-    clean = _clean_body(body, whitespace)
-    if not clean.strip():
-        raise ImucalError("no data rows after the header", source=source)
-    csv_sep = "," if whitespace else sep
-    nl = clean.find(b"\n")
-    n_cols = len(names) if names else _count_fields(clean[: nl if nl >= 0 else None], csv_sep)
-    lines = first_line + _content_lines(body, whitespace)
-    counts = _fields_per_line(clean, csv_sep)
-    bad = np.flatnonzero(counts != n_cols)
-    if bad.size:
-        i = int(bad[0])
-        if names and np.all(counts == counts[0]):
-            raise ImucalError(f"the header has {len(names)} column names but the rows have "
-                              f"{counts[0]} fields", source=source, field="columns")
-        raise ImucalError(f"ragged rows: line {lines[i]} has {counts[i]} fields, expected "
-                          f"{n_cols} ({_count(bad.size, 'ragged row')} in all)",
-                          source=source)
-    keys = [f"c{i}" for i in range(n_cols)]
-    # No quoting: numbers are never quoted in IMU logs, and a stray quote would swallow lines
-    # (the header was split in Python; quotes around a number are stripped when converting).
-    text = pl.read_csv(clean, has_header=False, separator=csv_sep, infer_schema=False,
-                       new_columns=keys, encoding="utf8-lossy", quote_char=None)
-    if names is None and n_cols > 1 and text.get_column(keys[-1]).null_count() == text.height:
-        n_cols -= 1  # a trailing separator on every line is not a column
-
-    def column(i: int) -> np.ndarray:
-        series = text.get_column(keys[i])
-        if decimal_comma:
-            series = series.str.replace(",", ".", literal=True)
-        label = f"column {names[i]!r}" if names else f"column {i + 1}"
-        return _series_to_float(series, label, source, lines)
-
-    return _Table(source, names, n_cols, column)
-
-
-def _clean_body(body: bytes, whitespace: bool) -> bytes:
-    """Drop carriage returns and blank lines; in whitespace-separated text make each run of
-    blanks between two fields a single comma (polars splits on one byte, not on runs).
-    Vectorised: a Python loop over lines costs ~50 ms per 50k rows."""
-    a = np.frombuffer(body, dtype=np.uint8)
-    if whitespace:
-        blank = (a == 32) | (a == 9) | (a == 13) | (a == 11) | (a == 12)
-    else:
-        blank = a == 13
-    keep = ~blank
-    out = a
-    if whitespace and blank.any():
-        is_field = keep & (a != 10)
-        step = np.diff(blank.view(np.int8), prepend=np.int8(0), append=np.int8(0))
-        starts, ends = np.flatnonzero(step == 1), np.flatnonzero(step == -1)
-        inner = (starts > 0) & (ends < a.size)
-        starts, ends = starts[inner], ends[inner]
-        seps = starts[is_field[starts - 1] & is_field[ends]]
-        out = a.copy()
-        out[seps] = ord(",")
-        keep[seps] = True
-    out = out[keep]
-    newline = out == 10
-    if newline.any():  # a newline right after another (or at the start) ends a blank line
-        blank_line = newline & np.concatenate(([True], newline[:-1]))
-        out = out[~blank_line]
-    return out.tobytes()
-
-
-def _count_fields(line: bytes, sep: str) -> int:
-    return line.count(sep.encode()) + 1
-
-
-def _fields_per_line(clean: bytes, sep: str) -> np.ndarray:
-    a = np.frombuffer(clean, dtype=np.uint8)
-    newlines = np.flatnonzero(a == 10)
-    n_lines = newlines.size + (0 if clean.endswith(b"\n") else 1)
-    line_of_sep = np.searchsorted(newlines, np.flatnonzero(a == ord(sep)))
-    return np.bincount(line_of_sep, minlength=n_lines)[:n_lines] + 1
-
-
-def _content_lines(body: bytes, whitespace: bool) -> np.ndarray:
-    """0-based line numbers (within ``body``) of the lines that hold something."""
-    a = np.frombuffer(body, dtype=np.uint8)
-    line_of_byte = np.concatenate(([0], np.cumsum(a[:-1] == 10)))
-    blank = (a == 13) | (a == 10)
-    if whitespace:
-        blank |= (a == 32) | (a == 9) | (a == 11) | (a == 12)
-    return np.unique(line_of_byte[~blank])
-
-
-def _series_to_float(series: pl.Series, label: str, source: str,
-                     lines: np.ndarray | None) -> np.ndarray:
-    """A column as float64; missing fields become NaN, text raises with its row or line."""
-    import polars as pl
-
-    dtype = series.dtype
-    if dtype.is_numeric():
-        return series.cast(pl.Float64).to_numpy()
-    if dtype not in (pl.String, pl.Categorical, pl.Enum):
-        raise ImucalError(f"{label} holds {dtype} values; expected numbers", source=source)
-    stripped = series.cast(pl.String).str.strip_chars().str.strip_chars("\"'")
-    missing = stripped.is_null() | stripped.str.to_lowercase().is_in(["", "na", "n/a", "null",
-                                                                       "none"])
-    numbers = stripped.cast(pl.Float64, strict=False)
-    bad = (numbers.is_null() & ~missing).arg_true()
-    if bad.len():
-        row = int(bad[0])
-        where = f"line {lines[row]}" if lines is not None and row < lines.size else f"row {row}"
-        raise ImucalError(f"{label}: text {stripped[row]!r} at {where} where a number was "
-                          f"expected ({_count(bad.len(), 'bad field')} in all)",
-                          source=source)
-    return numbers.fill_null(float("nan")).to_numpy()
-
-
 # --- from a file's contents to one part per sensor ----------------------------------------------
 
 
-def _extract(content: _Table | _Variables, sensors: tuple[str, ...],
+def _extract(content: Table | Variables, sensors: tuple[str, ...],
              opts: _Options) -> dict[str, _Part]:
-    if isinstance(content, _Variables):
+    if isinstance(content, Variables):
         return _from_variables(content, sensors, opts)
     if content.names is None:
         return _from_positions(content, sensors, opts)
@@ -765,7 +363,7 @@ def _expected(sensors: tuple[str, ...]) -> str:
     return f"3 columns ({xyz} of the {LABELS[sensors[0]]}) or 4 (t {xyz})"
 
 
-def _from_positions(table: _Table, sensors: tuple[str, ...], opts: _Options) -> dict[str, _Part]:
+def _from_positions(table: Table, sensors: tuple[str, ...], opts: _Options) -> dict[str, _Part]:
     """Headerless text or one matrix: columns [t] ax ay az [gx gy gz] by position."""
     source = table.source
     columns = _columns_for(opts, sensors, source)
@@ -803,7 +401,7 @@ def _is_counter(values: np.ndarray | None) -> bool:
     return bool(np.all(np.diff(values) == 1) and float(values[0]).is_integer())
 
 
-def _from_names(table: _Table, sensors: tuple[str, ...], opts: _Options) -> dict[str, _Part]:
+def _from_names(table: Table, sensors: tuple[str, ...], opts: _Options) -> dict[str, _Part]:
     """A table with a header: map column names to roles, then let ``columns`` override."""
     assert table.names is not None
     single = sensors[0] if len(sensors) == 1 else None
@@ -844,7 +442,7 @@ def _from_names(table: _Table, sensors: tuple[str, ...], opts: _Options) -> dict
     return parts
 
 
-def _explicit_columns(table: _Table, columns: dict[str, str | int]) -> dict[str, int]:
+def _explicit_columns(table: Table, columns: dict[str, str | int]) -> dict[str, int]:
     """Column indices of the roles the user mapped by name (any case) or position."""
     assert table.names is not None
     lowered = [n.strip().lower() for n in table.names]
@@ -867,7 +465,7 @@ def _explicit_columns(table: _Table, columns: dict[str, str | int]) -> dict[str,
     return result
 
 
-def _parts_from_mapping(table: _Table, mapping: dict[str, int], sensors: tuple[str, ...],
+def _parts_from_mapping(table: Table, mapping: dict[str, int], sensors: tuple[str, ...],
                         opts: _Options, counter: str | None) -> dict[str, _Part]:
     parts = {}
     for sensor in sensors:
@@ -913,7 +511,7 @@ _OWN_TIME_VARS = {"acc": ("t_acc", "time_acc", "t_a"), "gyro": ("t_gyro", "t_gyr
 _SHARED_TIME_VARS = ("t", "time", "timestamp", "timestamps")
 
 
-def _from_variables(content: _Variables, sensors: tuple[str, ...],
+def _from_variables(content: Variables, sensors: tuple[str, ...],
                     opts: _Options) -> dict[str, _Part]:
     source, variables = content.source, content.arrays
     lower = {name.lower(): name for name in variables}
@@ -982,7 +580,7 @@ def _orient(matrix: np.ndarray, widths: tuple[int, ...], what: str, source: str,
                       field="shape")
 
 
-def _single_matrix(content: _Variables, sensors: tuple[str, ...], shared: str | None,
+def _single_matrix(content: Variables, sensors: tuple[str, ...], shared: str | None,
                    shared_t: np.ndarray | None, opts: _Options) -> dict[str, _Part]:
     source = content.source
     matrices = {n: m for n, m in content.arrays.items() if min(m.shape) > 1}
@@ -995,7 +593,7 @@ def _single_matrix(content: _Variables, sensors: tuple[str, ...], shared: str | 
                           field="variables")
     (name, matrix), = matrices.items()
     matrix = _orient(matrix, _widths(sensors), f"matrix {name!r}", source, _expected(sensors))
-    table = _Table(source, None, matrix.shape[1], lambda i: matrix[:, i],
+    table = Table(source, None, matrix.shape[1], lambda i: matrix[:, i],
                    shared_time=shared_t, shared_time_name=shared or "")
     return _from_positions(table, sensors, opts)
 
@@ -1109,7 +707,7 @@ def _bridge_gaps(values: np.ndarray, t: np.ndarray, label: str, source: str,
         where = ", ".join(f"{a}-{b - 1}" if b - a > 1 else f"{a}" for a, b in gaps[:5])
         where += ", ..." if len(gaps) > 5 else ""
         notes.append(f"{label}: bridged {int(inner.sum())} NaN/Inf samples of {source} by linear "
-                     f"interpolation in {_count(len(gaps), 'gap')} (index {where})")
+                     f"interpolation in {plural(len(gaps), 'gap')} (index {where})")
     if head or tail < n:
         ends_named = " and ".join(w for w, hit in (("start", head), ("end", tail < n)) if hit)
         notes.append(f"{label}: dropped {head + n - tail} NaN/Inf samples at the {ends_named} "

@@ -562,12 +562,12 @@ def test_polars_panic_is_an_imucal_error(tmp_path, monkeypatch):
     only by the readers that need it; its panic must still become one ImucalError line."""
     from polars.exceptions import PanicException
 
-    import imucal.load
+    import imucal.readers
 
     def panic(path):
         raise PanicException("called `Option::unwrap()` on a `None` value\nat src/lib.rs")
 
-    monkeypatch.setattr(imucal.load, "_read_parquet", panic)
+    monkeypatch.setattr(imucal.readers, "_read_parquet", panic)
     path = _corrupt(b"PAR1")(tmp_path / "panic.parquet")
     with pytest.raises(ImucalError, match=r"panic.parquet: cannot read the file: PanicException: "
                                           r"called `Option::unwrap\(\)` on a `None` value$"):

@@ -9,8 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imucal import load
+from imucal import text_table
 from imucal.errors import ImucalError
+from imucal.file_contents import Table
 
 # How loggers and savetxt write numbers; the repr-like ones round-trip a float exactly.
 EXACT_FORMATS = ["repr", "%.17g", "%.17e"]
@@ -21,24 +22,24 @@ def _fmt(value: float, fmt: str) -> str:
     return repr(value) if fmt == "repr" else fmt % value
 
 
-def _read(data: bytes, fast: bool = True) -> tuple[load._Table, bool]:
+def _read(data: bytes, fast: bool = True) -> tuple[Table, bool]:
     """``_read_text`` with or without the fast path; also says whether the fast path answered."""
     calls: list[bool] = []
-    real = load._parse_fast
+    real = text_table._parse_fast
 
     def spy(*args):
         table = real(*args) if fast else None
         calls.append(table is not None)
         return table
 
-    load._parse_fast = spy
+    text_table._parse_fast = spy
     try:
-        return load._read_text(data, "f.txt"), calls == [True]
+        return text_table.read_text(data, "f.txt"), calls == [True]
     finally:
-        load._parse_fast = real
+        text_table._parse_fast = real
 
 
-def _columns(table: load._Table) -> np.ndarray:
+def _columns(table: Table) -> np.ndarray:
     return np.column_stack([table.column(i) for i in range(table.n_cols)])
 
 

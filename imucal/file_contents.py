@@ -1,0 +1,36 @@
+"""What a reader makes of a file (method.md §0): a table of columns, or named variables.
+
+Both are raw material: which columns or variables hold time, the accelerometer and the
+gyroscope is decided by :mod:`imucal.load`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Table:
+    """Columns of a text or Parquet file, or one matrix; converted to float64 on demand."""
+
+    source: str
+    names: list[str] | None  # None: no header, columns are known by position
+    n_cols: int
+    column: Callable[[int], np.ndarray]
+    seconds_cols: frozenset[int] = frozenset()  # date-times already turned into seconds
+    shared_time: np.ndarray | None = None  # a separate time vector next to a .mat matrix
+    shared_time_name: str = ""
+
+    def label(self, i: int) -> str:
+        return f"column {self.names[i]!r}" if self.names else f"column {i + 1}"
+
+
+@dataclass
+class Variables:
+    """Named numeric variables of a .mat (v5 or v7.3) file, as 2-D float64 arrays."""
+
+    source: str
+    arrays: dict[str, np.ndarray]

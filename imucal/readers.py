@@ -1,0 +1,159 @@
+"""Recognise a file's format from its content and read it (method.md §0).
+
+The format is never taken from the extension (the imu_tk example ``xsens_acc.mat`` is plain
+text): MATLAB v5 ``.mat``, MATLAB v7.3 / HDF5, Parquet, and otherwise text
+(:mod:`imucal.text_table`). Whatever a parsing library raises becomes one
+:class:`~imucal.errors.ImucalError` line naming the file.
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ImucalError
+from .file_contents import Table, Variables
+from .text_table import read_text, series_to_float
+
+
+def display_name(path: Path) -> str:
+    """How a file is named in messages."""
+    return path.name or str(path)
+
+
+_MAGIC_MAT5 = b"MATLAB 5.0 MAT-file"
+_MAGIC_HDF5 = b"\x89HDF\r\n\x1a\n"
+_MAGIC_PARQUET = b"PAR1"
+# Formats people try that we do not read: name them instead of calling them garbled text.
+_UNSUPPORTED_MAGIC = {
+    b"PK\x03\x04": "a zip archive (or an Excel .xlsx workbook); export it as CSV",
+    b"\x1f\x8b": "gzip-compressed; decompress it first",
+    b"\x93NUMPY": "a NumPy .npy file; save it as CSV or .mat",
+    b"\xff\xfe": "UTF-16 text; save it as UTF-8",
+    b"\xfe\xff": "UTF-16 text; save it as UTF-8",
+}
+
+
+def read_file(path: Path) -> Table | Variables:
+    """Read any supported format; library exceptions become one-line ImucalErrors."""
+    source = display_name(path)
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(1024)
+        if head.startswith(_MAGIC_MAT5):
+            return _read_mat5(path)
+        if head[:8] == _MAGIC_HDF5 or head[512:520] == _MAGIC_HDF5:
+            return _read_hdf5(path)
+        if head[:4] == _MAGIC_PARQUET:
+            return _read_parquet(path)
+        for magic, what in _UNSUPPORTED_MAGIC.items():
+            if head.startswith(magic):
+                raise ImucalError(f"unsupported format: {what}", source=source)
+        if b"\x00" in head:
+            raise ImucalError("unknown binary format; expected CSV/TSV/text, MATLAB .mat (v5 or "
+                              "v7.3/HDF5) or Parquet", source=source)
+        return read_text(path.read_bytes(), source)
+    except ImucalError:
+        raise
+    except MemoryError:
+        raise ImucalError("not enough memory to load the file", source=source) from None
+    except _parser_errors() as exc:  # any parser failure is a problem with the file, in one line
+        raise ImucalError(f"cannot read the file: {_one_line(exc)}", source=source) from None
+
+
+def _parser_errors() -> tuple[type[BaseException], ...]:
+    """What a failing parser raises: polars reports some malformed input by panicking, and its
+    PanicException is a BaseException. Looked up when an exception arrives (that is when an
+    ``except`` clause is evaluated), as polars is imported only by the readers that need it."""
+    exceptions = sys.modules.get("polars.exceptions")
+    return (Exception,) if exceptions is None else (Exception, exceptions.PanicException)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    first = text[0] if text else ""
+    return f"{type(exc).__name__}: {first[:200]}" if first else type(exc).__name__
+
+
+def _as_matrix(value: object) -> np.ndarray | None:
+    """A real numeric array as 2-D float64, or None for strings, structs, cells, logicals."""
+    if not isinstance(value, np.ndarray) or value.dtype.kind not in "iuf" or value.size == 0:
+        return None
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2:
+        arr = np.squeeze(arr)
+        if arr.ndim != 2:
+            return None
+    return arr
+
+
+def _read_mat5(path: Path) -> Variables:
+    from scipy.io import loadmat
+
+    from .mat5_check import CorruptMat, check_mat5
+
+    data = path.read_bytes()
+    inflated = io.BytesIO()
+    try:
+        check_mat5(data, inflated)  # scipy crashes the process on some corrupt files
+    except CorruptMat as e:
+        raise ImucalError(f"corrupt MATLAB v5 file: {e}", source=display_name(path)) from None
+    del data
+    inflated.seek(0)
+    raw = loadmat(inflated)  # the checked file, its variables already inflated by the check
+    found = {}
+    for name, value in raw.items():
+        if name.startswith("__"):
+            continue
+        matrix = _as_matrix(value)
+        if matrix is not None:
+            found[name] = matrix
+    return Variables(path.name, found)
+
+
+def _read_hdf5(path: Path) -> Variables:
+    import h5py
+
+    found = {}
+    with h5py.File(path, "r") as f:
+        for name, item in f.items():
+            if not isinstance(item, h5py.Dataset) or name.startswith("#"):
+                continue
+            cls = item.attrs.get("MATLAB_class")
+            cls = cls.decode() if isinstance(cls, bytes) else cls
+            if cls in ("char", "logical", "cell", "struct") or "MATLAB_empty" in item.attrs:
+                continue
+            matrix = _as_matrix(item[()])
+            if matrix is None:
+                continue
+            # MATLAB writes column-major, so h5py sees every matrix transposed.
+            found[name] = matrix.T if cls is not None else matrix
+    return Variables(path.name, found)
+
+
+def _read_parquet(path: Path) -> Table:
+    import polars as pl
+
+    frame = pl.read_parquet(path)
+    seconds = set()
+    cols = []
+    for i, name in enumerate(frame.columns):
+        s = frame.get_column(name)
+        if s.dtype == pl.Datetime:
+            s = s.dt.epoch("us").cast(pl.Float64) / 1e6
+            seconds.add(i)
+        elif s.dtype == pl.Duration:
+            s = s.dt.total_microseconds().cast(pl.Float64) / 1e6
+            seconds.add(i)
+        cols.append(s)
+    names = list(frame.columns)
+
+    def column(i: int) -> np.ndarray:
+        return series_to_float(cols[i], f"column {names[i]!r}", path.name, None)
+
+    return Table(path.name, names, len(names), column, frozenset(seconds))
