@@ -13,6 +13,7 @@ interrupted (Ctrl-C).
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import sys
@@ -716,7 +717,7 @@ def view(
         raise ImucalError("file not found", source=str(target))
     if save is not None:
         _check_outputs([save], [target, gyro])
-    view_fn = _import_viewer("viewer.app", "view")
+    view_fn = _import_viewer("viewer.app", "show")
     rc = view_fn(str(target), save=None if save is None else str(save), web=web, port=port,
                  load_options=load_options or None, **overrides)
     return int(rc or 0)
@@ -753,25 +754,30 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def _err(message: str) -> None:
+def _err(message: str, prog: str = "imucal") -> None:
     try:
-        sys.stderr.write(f"imucal: {_one_line(message)}\n")
+        sys.stderr.write(f"{prog}: {_one_line(message)}\n")
         sys.stderr.flush()
     except (OSError, ValueError):
         pass
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+def _show_warning(message, category, filename, lineno, file=None, line=None,
+                  prog: str = "imucal") -> None:
     """Python warnings from the libraries, as one line each."""
-    _err(f"warning: {category.__name__}: {message}")
+    _err(f"warning: {category.__name__}: {message}", prog)
 
 
 def _on_sigterm(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; return the exit code (never a traceback for the user)."""
+def main(argv: list[str] | None = None, *, command: str | None = None,
+         prog: str = "imucal") -> int:
+    """Run the command line; return the exit code (never a traceback for the user).
+
+    ``command`` runs one subcommand directly under the name ``prog`` (``imucal-view`` is
+    ``imucal view``)."""
     import warnings
 
     args = sys.argv[1:] if argv is None else list(argv)
@@ -788,28 +794,31 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, _on_sigterm)
     debug = os.environ.get("IMUCAL_DEBUG", "") not in ("", "0")
     if not debug:
-        warnings.showwarning = _show_warning
+        warnings.showwarning = functools.partial(_show_warning, prog=prog)
+    err = functools.partial(_err, prog=prog)
     try:
-        command = typer.main.get_command(app)
-        rv = command.main(args, prog_name="imucal", standalone_mode=False)
+        cli = typer.main.get_command(app)
+        if command is not None:
+            cli = cli.commands[command]
+        rv = cli.main(args, prog_name=prog, standalone_mode=False)
         if rv == EXIT_INTERRUPTED:
-            _err("interrupted")
+            err("interrupted")
         return rv if isinstance(rv, int) else EXIT_OK
     except ImucalError as e:
-        _err(f"error: {e}")
+        err(f"error: {e}")
         return EXIT_ERROR
     except typer.Abort:
-        _err("aborted")
+        err("aborted")
         return EXIT_ERROR
     except typer.TyperException as e:  # click's usage errors (exit 2) and the like
         show = getattr(e, "show", None)
         if show is not None:
             show()
         else:
-            _err(f"error: {e}")
+            err(f"error: {e}")
         return int(getattr(e, "exit_code", EXIT_USAGE))
     except KeyboardInterrupt:
-        _err("interrupted")
+        err("interrupted")
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         # The reader of stdout went away (e.g. `imucal ... | head`): stop quietly.
@@ -817,19 +826,19 @@ def main(argv: list[str] | None = None) -> int:
             sys.stdout = open(os.devnull, "w")  # noqa: SIM115
         return EXIT_ERROR
     except MemoryError:
-        _err("error: not enough memory")
+        err("error: not enough memory")
         return EXIT_ERROR
     except OSError as e:
         if debug:
             raise
         where = e.filename if e.filename is not None else ""
         reason = e.strerror or e.__class__.__name__
-        _err(f"error: {where}: {reason}" if where else f"error: {reason}")
+        err(f"error: {where}: {reason}" if where else f"error: {reason}")
         return EXIT_ERROR
     except Exception as e:
         if debug:
             raise
-        _err(f"internal error: {e.__class__.__name__}: {e} (a bug in imucal; run with "
+        err(f"internal error: {e.__class__.__name__}: {e} (a bug in imucal; run with "
              "IMUCAL_DEBUG=1 for the traceback)")
         return EXIT_INTERNAL
 

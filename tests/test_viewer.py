@@ -404,6 +404,33 @@ def test_cli_main(tmp_path, sample_session_path):
     assert e.value.code == 1
 
 
+def test_imucal_view_takes_every_option_of_imucal_view(tmp_path, sample_session_path, capsys):
+    """``imucal-view`` is ``imucal view``: a two-file text session (imu_tk's layout) with a
+    setting, then a bad option value and a missing file, each one line and its exit code."""
+    from scipy.io import loadmat
+
+    data = loadmat(sample_session_path)
+    for sensor in ("acc", "gyro"):
+        np.savetxt(tmp_path / f"{sensor}.txt",
+                   np.hstack([data[f"t_{sensor}"].reshape(-1, 1), data[sensor]]), fmt="%.9g")
+    out = tmp_path / "two.rrd"
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "acc.txt"), "--gyro", str(tmp_path / "gyro.txt"), "--lambda",
+              "0.01", "--save", str(out)])
+    assert e.value.code == 0 and is_rrd(out)
+    assert rb.values(out, P.INFO)["lambda"] == pytest.approx(0.01)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "acc.txt"), "--k", "-1", "--save", str(out)])
+    assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "missing.txt"), "--save", str(tmp_path / "x.rrd")])
+    assert e.value.code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"imucal-view: error: {tmp_path / 'missing.txt'}: file not found"
+    assert not (tmp_path / "x.rrd").exists()
+
+
 def test_web_command_binds_loopback():
     cmd = web_command("rerun", "x.rrd", 9090, 9876)
     assert cmd[cmd.index("--bind") + 1] == "127.0.0.1"

@@ -10,8 +10,9 @@ A session file is loaded (:func:`imucal.load_session`), calibrated and recorded;
   ``DISPLAY`` nor ``WAYLAND_DISPLAY`` is set) it says so in one line and writes
   ``<session stem>.rrd`` in the current directory instead; it never waits for a window.
 
-A problem with the input is one line on stderr and exit code 1. ``import rerun`` (slow) happens
-only when a recording is written.
+It is ``imucal view`` under its own name: the same options (``--gyro`` for a two-file session,
+units, every calibration setting) and the same one-line errors with exit code 1.
+``import rerun`` (slow) happens only when a recording is written.
 """
 
 from __future__ import annotations
@@ -141,15 +142,17 @@ def view(target: str, *, save: str | None = None, web: bool = False, port: int =
     :func:`imucal.calibrate` (settings such as ``lam`` or ``single_segment``).
     """
     try:
-        return _view(target, save=save, web=web, port=port, load_options=load_options,
-                     **calibrate_kwargs)
+        return show(target, save=save, web=web, port=port, load_options=load_options,
+                    **calibrate_kwargs)
     except ImucalError as e:
         print(f"imucal-view: {e}", file=sys.stderr)
         return 1
 
 
-def _view(target: str, *, save: str | None, web: bool, port: int, load_options: dict | None,
-          **calibrate_kwargs) -> int:
+def show(target: str, *, save: str | None = None, web: bool = False, port: int = 9090,
+         load_options: dict | None = None, **calibrate_kwargs) -> int:
+    """:func:`view` raising :class:`~imucal.errors.ImucalError` instead of printing it (for the
+    command line, which reports every error the same way)."""
     src = Path(target)
     if not src.is_file():
         raise ImucalError("no such file", source=str(target))
@@ -165,9 +168,9 @@ def _view(target: str, *, save: str | None, web: bool, port: int, load_options: 
 
     if not web and not has_display():
         if rrd:
-            print(f"imucal-view: no display (neither DISPLAY nor WAYLAND_DISPLAY is set): cannot "
-                  f"open {src}; try --web", file=sys.stderr)
-            return 1
+            raise ImucalError("no display (neither DISPLAY nor WAYLAND_DISPLAY is set): cannot "
+                              "open it here; try --web, or open it where there is a display",
+                              source=str(src))
         out = Path.cwd() / f"{src.stem}.rrd"
         record(src, out, load_options, **calibrate_kwargs)
         print(f"no display (neither DISPLAY nor WAYLAND_DISPLAY is set): wrote {out} instead; "
@@ -191,31 +194,11 @@ def _view(target: str, *, save: str | None, web: bool, port: int, load_options: 
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``imucal-view`` script."""
-    import typer
+    """Entry point of the ``imucal-view`` script: ``imucal view`` under its own name, so both
+    take the same options (two-file sessions, units, every setting) and report errors alike."""
+    from imucal.cli import main as cli_main
 
-    app = typer.Typer(add_completion=False, help=__doc__.split("\n\n")[0])
-
-    @app.command()
-    def cli(
-        target: str = typer.Argument(..., metavar="SESSION|RUN.rrd",
-                                     help="a session file to calibrate, or a saved .rrd"),
-        save: str = typer.Option(None, "--save", metavar="FILE.rrd",
-                                 help="write the recording to FILE.rrd and open nothing"),
-        web: bool = typer.Option(False, "--web", help="serve the web viewer on 127.0.0.1"),
-        port: int = typer.Option(9090, "--port", help="web viewer port"),
-        rate: float = typer.Option(None, "--rate", help="sample rate (Hz) for a file without "
-                                   "time"),
-        acc_unit: str = typer.Option("auto", "--acc-unit", help="g, m/s^2, counts or auto"),
-        gyro_unit: str = typer.Option("auto", "--gyro-unit",
-                                      help="rad/s, deg/s, counts or auto"),
-    ) -> None:
-        load = {"acc_unit": acc_unit, "gyro_unit": gyro_unit}
-        if rate is not None:
-            load["rate"] = rate
-        raise typer.Exit(view(target, save=save, web=web, port=port, load_options=load))
-
-    app(args=argv, prog_name="imucal-view")
+    sys.exit(cli_main(argv, command="view", prog="imucal-view"))
 
 
 if __name__ == "__main__":
