@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import math
 import os
 import sys
@@ -257,8 +258,62 @@ GyroSensitivityOpt = Annotated[float | None, typer.Option(
          "raw counts [default: found from the data].")]
 
 
+# The options several commands share, in --help order: (parameter, option, default).
+INPUT_OPTIONS = (
+    ("gyro", GyroOpt, None), ("rate", RateOpt, None), ("acc_unit", AccUnitOpt, "auto"),
+    ("gyro_unit", GyroUnitOpt, "auto"), ("columns", ColumnsOpt, None),
+    ("time_unit", TimeUnitOpt, "s"), ("acc_only", AccOnlyOpt, False))
+SETTING_OPTIONS = (
+    ("window", WindowOpt, DEFAULTS["window"]), ("min_len", MinLenOpt, DEFAULTS["min_len"]),
+    ("k", KOpt, DEFAULTS["k"]), ("init", InitOpt, None), ("init_start", InitStartOpt, None),
+    ("init_end", InitEndOpt, None), ("statistic", StatisticOpt, DEFAULTS["statistic"]),
+    ("single_segment", SingleSegmentOpt, DEFAULTS["single_segment"]),
+    ("delta", DeltaOpt, DEFAULTS["delta"]), ("min_blocks", MinBlocksOpt, DEFAULTS["min_blocks"]),
+    ("g", GOpt, DEFAULTS["g"]), ("lam", LambdaOpt, DEFAULTS["lam"]),
+    ("points", PointsOpt, DEFAULTS["points"]),
+    ("gyro_lambda", GyroLambdaOpt, DEFAULTS["gyro_lam"]),
+    ("gyro_bias", GyroBiasOpt, DEFAULTS["gyro_bias"]),
+    ("optimise_gyro_bias", OptimiseGyroBiasOpt, DEFAULTS["optimise_gyro_bias"]),
+    ("gyro_sensitivity", GyroSensitivityOpt, DEFAULTS["gyro_nominal_scale"]))
+
+
+def shared_options(*groups: tuple):
+    """Give a command the options of ``groups`` where its ``options`` parameter stands, and
+    hand them to it as that one mapping.
+
+    typer reads a command's options from its signature, so without this every command that
+    loads and calibrates a recording would spell out the same two dozen parameters.
+    """
+    specs = [spec for group in groups for spec in group]
+
+    def decorate(fn):
+        own = inspect.signature(fn, eval_str=True)
+        params = []
+        for p in own.parameters.values():
+            if p.name == "options":
+                params += [inspect.Parameter(name, inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                                             default=default, annotation=option)
+                           for name, option, default in specs]
+            else:
+                params.append(p)
+
+        @functools.wraps(fn)
+        def command(**kwargs):
+            options = {name: kwargs.pop(name) for name, _, _ in specs}
+            return fn(options=options, **kwargs)
+
+        command.__signature__ = own.replace(parameters=params)
+        return command
+
+    return decorate
+
+
+def _pick(options: dict[str, Any], group: tuple) -> dict[str, Any]:
+    return {name: options[name] for name, _, _ in group}
+
+
 def _settings(*, window, min_len, k, init, init_start, init_end, statistic, single_segment,
-              delta, min_blocks, g, lam, points, gyro_lam, gyro_bias, optimise_gyro_bias,
+              delta, min_blocks, g, lam, points, gyro_lambda, gyro_bias, optimise_gyro_bias,
               gyro_sensitivity) -> dict[str, Any]:
     """The options as keyword arguments of imucal.calibrate (every key of Settings)."""
     if init is not None and (init_start is not None or init_end is not None):
@@ -273,7 +328,7 @@ def _settings(*, window, min_len, k, init, init_start, init_end, statistic, sing
     return {"window": window, "min_len": min_len, "k": k, "init": (start, end),
             "statistic": statistic, "single_segment": single_segment, "delta": delta,
             "min_blocks": min_blocks, "g": g, "lam": lam if lam == "auto" else float(lam),
-            "points": points, "gyro_lam": gyro_lam, "gyro_bias": gyro_bias,
+            "points": points, "gyro_lam": gyro_lambda, "gyro_bias": gyro_bias,
             "optimise_gyro_bias": optimise_gyro_bias, "gyro_nominal_scale": gyro_sensitivity}
 
 
@@ -370,6 +425,7 @@ def _rate(hz: float | None) -> str:
 
 
 @app.command()
+@shared_options(INPUT_OPTIONS, SETTING_OPTIONS)
 def calibrate(
     session: SessionArg,
     out: Annotated[Path, typer.Option("--out", "-o", metavar="CALIB.json", show_default=False,
@@ -379,41 +435,13 @@ def calibrate(
     calibrated: Annotated[Path | None, typer.Option(
         "--calibrated", metavar="OUT.parquet|.csv|.mat",
         help="Also write the calibrated signals.")] = None,
-    gyro: GyroOpt = None,
-    rate: RateOpt = None,
-    acc_unit: AccUnitOpt = "auto",
-    gyro_unit: GyroUnitOpt = "auto",
-    columns: ColumnsOpt = None,
-    time_unit: TimeUnitOpt = "s",
-    acc_only: AccOnlyOpt = False,
-    window: WindowOpt = DEFAULTS["window"],
-    min_len: MinLenOpt = DEFAULTS["min_len"],
-    k: KOpt = DEFAULTS["k"],
-    init: InitOpt = None,
-    init_start: InitStartOpt = None,
-    init_end: InitEndOpt = None,
-    statistic: StatisticOpt = DEFAULTS["statistic"],
-    single_segment: SingleSegmentOpt = DEFAULTS["single_segment"],
-    delta: DeltaOpt = DEFAULTS["delta"],
-    min_blocks: MinBlocksOpt = DEFAULTS["min_blocks"],
-    g: GOpt = DEFAULTS["g"],
-    lam: LambdaOpt = DEFAULTS["lam"],
-    points: PointsOpt = DEFAULTS["points"],
-    gyro_lambda: GyroLambdaOpt = DEFAULTS["gyro_lam"],
-    gyro_bias: GyroBiasOpt = DEFAULTS["gyro_bias"],
-    optimise_gyro_bias: OptimiseGyroBiasOpt = DEFAULTS["optimise_gyro_bias"],
-    gyro_sensitivity: GyroSensitivityOpt = DEFAULTS["gyro_nominal_scale"],
+    options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
     """Calibrate a recording and write the calibration file (and optionally more)."""
-    settings = _settings(window=window, min_len=min_len, k=k, init=init, init_start=init_start,
-                         init_end=init_end, statistic=statistic, single_segment=single_segment,
-                         delta=delta, min_blocks=min_blocks, g=g, lam=lam, points=points,
-                         gyro_lam=gyro_lambda, gyro_bias=gyro_bias,
-                         optimise_gyro_bias=optimise_gyro_bias,
-                         gyro_sensitivity=gyro_sensitivity)
-    load_kw = _load_kwargs(gyro=gyro, rate=rate, acc_unit=acc_unit, gyro_unit=gyro_unit,
-                           columns=columns, time_unit=time_unit, acc_only=acc_only)
+    settings = _settings(**_pick(options, SETTING_OPTIONS))
+    load_kw = _load_kwargs(**_pick(options, INPUT_OPTIONS))
+    gyro = options["gyro"]
     inputs = [session, gyro]
     if calibrated is not None:
         from .export import output_format
@@ -525,6 +553,7 @@ def _print_summary(result, written: list[str]) -> None:
 
 
 @app.command()
+@shared_options(INPUT_OPTIONS)
 def apply(
     calibration: Annotated[Path, typer.Argument(metavar="CALIB.json", show_default=False,
                                                 help="Calibration file from 'imucal calibrate'.")],
@@ -532,13 +561,7 @@ def apply(
     out: Annotated[Path, typer.Option(
         "--out", "-o", metavar="OUT.parquet|.csv|.mat", show_default=False,
         help="Calibrated signals to write; the format follows the name.")],
-    gyro: GyroOpt = None,
-    rate: RateOpt = None,
-    acc_unit: AccUnitOpt = "auto",
-    gyro_unit: GyroUnitOpt = "auto",
-    columns: ColumnsOpt = None,
-    time_unit: TimeUnitOpt = "s",
-    acc_only: AccOnlyOpt = False,
+    options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
     """Apply a calibration file to a recording and write the calibrated signals.
@@ -549,7 +572,7 @@ def apply(
 
     output_format(out)
     outputs = [out] + ([_gyro_sidecar(out)] if out.suffix.lower() != ".mat" else [])
-    _check_outputs(outputs, [calibration, session, gyro])
+    _check_outputs(outputs, [calibration, session, options["gyro"]])
     progress = Progress(verbose)
     import imucal
 
@@ -557,8 +580,7 @@ def apply(
 
     with progress.stage(f"reading {calibration.name}"):
         cal = imucal.load_calibration(calibration)
-    load_kw = _load_kwargs(gyro=gyro, rate=rate, acc_unit=acc_unit, gyro_unit=gyro_unit,
-                           columns=columns, time_unit=time_unit, acc_only=acc_only)
+    load_kw = _load_kwargs(**_pick(options, INPUT_OPTIONS))
     with progress.stage(f"loading {session.name}"):
         sess = imucal.load_session(session, **load_kw)
     with progress.stage("applying"):
@@ -663,6 +685,7 @@ def synth(
 
 
 @app.command()
+@shared_options(INPUT_OPTIONS, SETTING_OPTIONS)
 def view(
     target: Annotated[Path, typer.Argument(
         metavar="SESSION|RUN.rrd", show_default=False,
@@ -673,44 +696,16 @@ def view(
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer.")] = False,
     port: Annotated[int, typer.Option("--port", metavar="N", min=1, max=65535,
                                       help="Port of the web viewer.")] = 9090,
-    gyro: GyroOpt = None,
-    rate: RateOpt = None,
-    acc_unit: AccUnitOpt = "auto",
-    gyro_unit: GyroUnitOpt = "auto",
-    columns: ColumnsOpt = None,
-    time_unit: TimeUnitOpt = "s",
-    acc_only: AccOnlyOpt = False,
-    window: WindowOpt = DEFAULTS["window"],
-    min_len: MinLenOpt = DEFAULTS["min_len"],
-    k: KOpt = DEFAULTS["k"],
-    init: InitOpt = None,
-    init_start: InitStartOpt = None,
-    init_end: InitEndOpt = None,
-    statistic: StatisticOpt = DEFAULTS["statistic"],
-    single_segment: SingleSegmentOpt = DEFAULTS["single_segment"],
-    delta: DeltaOpt = DEFAULTS["delta"],
-    min_blocks: MinBlocksOpt = DEFAULTS["min_blocks"],
-    g: GOpt = DEFAULTS["g"],
-    lam: LambdaOpt = DEFAULTS["lam"],
-    points: PointsOpt = DEFAULTS["points"],
-    gyro_lambda: GyroLambdaOpt = DEFAULTS["gyro_lam"],
-    gyro_bias: GyroBiasOpt = DEFAULTS["gyro_bias"],
-    optimise_gyro_bias: OptimiseGyroBiasOpt = DEFAULTS["optimise_gyro_bias"],
-    gyro_sensitivity: GyroSensitivityOpt = DEFAULTS["gyro_nominal_scale"],
+    options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
 ) -> int:
     """Calibrate a recording and show every step in Rerun (or open a saved .rrd).
 
     Without a display (and without --web) the recording is written to SESSION-STEM.rrd in the
     current directory instead.
     """
-    settings = _settings(window=window, min_len=min_len, k=k, init=init, init_start=init_start,
-                         init_end=init_end, statistic=statistic, single_segment=single_segment,
-                         delta=delta, min_blocks=min_blocks, g=g, lam=lam, points=points,
-                         gyro_lam=gyro_lambda, gyro_bias=gyro_bias,
-                         optimise_gyro_bias=optimise_gyro_bias,
-                         gyro_sensitivity=gyro_sensitivity)
-    load_kw = _load_kwargs(gyro=gyro, rate=rate, acc_unit=acc_unit, gyro_unit=gyro_unit,
-                           columns=columns, time_unit=time_unit, acc_only=acc_only)
+    settings = _settings(**_pick(options, SETTING_OPTIONS))
+    load_kw = _load_kwargs(**_pick(options, INPUT_OPTIONS))
+    gyro = options["gyro"]
     load_options = {key: v for key, v in load_kw.items() if v != LOAD_DEFAULTS[key]}
     overrides = {key: v for key, v in settings.items() if v != DEFAULTS[key]}
     if not target.exists():
