@@ -37,6 +37,31 @@ class Detection:
     means: np.ndarray  # (B, 3) raw mean accelerometer vector of each block
     window: int
     min_len: int
+    init: tuple[float, float] = (0.5, 3.0)  # the interval s2_init came from, s from the start
+    note: str | None = None  # why it is not the one asked for
+
+
+# The initial interval must be still (method.md §1): its mean may not wander. It is cut into
+# INIT_PARTS parts and the spread of their means compared with what the noise inside them allows
+# (an F ratio): about 1 for a still sensor, 1.3-3.8 on the real recordings in shared/data,
+# hundreds to thousands once the device turns during it.
+INIT_PARTS = 5
+INIT_MAX_F = 30.0
+
+
+def wander_ratio(x: np.ndarray, parts: int = INIT_PARTS) -> float:
+    """F ratio of the part means of ``x`` (n, k) against the noise within the parts (the largest
+    over the columns); 0 where a column is constant."""
+    m = len(x) // parts
+    if m < 2:
+        return 0.0
+    xp = np.asarray(x[:m * parts], dtype=np.float64).reshape(parts, m, -1)
+    xp = xp - xp[0, 0]  # centred: raw counts lose no digits
+    within = xp.var(axis=1, ddof=1).mean(axis=0)
+    between = m * xp.mean(axis=1).var(axis=0, ddof=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(within > 0, between / within, np.where(between > 0, np.inf, 0.0))
+    return float(f.max())
 
 
 def rolling_variance(x: np.ndarray, window: int) -> np.ndarray:
@@ -238,6 +263,7 @@ def detect_static(acc: np.ndarray, t: np.ndarray, settings: DetectSettings = Det
     stat = rolling_statistic(acc, window, settings.statistic)
 
     t0, t1 = settings.init
+    note = None
     if increasing:  # the interval is a slice: no masks the length of the recording
         i0, i1 = np.searchsorted(t, [t[0] + t0, t[0] + t1], side="left")
         init = acc[i0:i1]
@@ -247,6 +273,15 @@ def detect_static(acc: np.ndarray, t: np.ndarray, settings: DetectSettings = Det
         raise ImucalError(f"the initial still interval {t0:g}-{t1:g} s holds only {len(init)} "
                           "samples; the session must start with the device still for a few "
                           "seconds", source=source, field="initial still period")
+    if increasing:
+        f = wander_ratio(init)
+        if f > INIT_MAX_F:
+            init, (t0, t1) = _first_still_interval(acc, t, t0, t1, f, source)
+            note = (f"the accelerometer moves during the initial still interval "
+                    f"{settings.init[0]:g}-{settings.init[1]:g} s (its mean wanders {f:.0f}x "
+                    f"more than its noise allows); the noise level was learned from "
+                    f"{t0:g}-{t1:g} s instead, the first still stretch: start recordings with "
+                    "the sensor lying still, or set the interval (--init START END)")
     init_var = np.var(init, axis=0, ddof=1)
     s2_init = float(combine_variances(init_var, settings.statistic))
     if not np.isfinite(s2_init) or s2_init <= 0.0:
@@ -259,7 +294,26 @@ def detect_static(acc: np.ndarray, t: np.ndarray, settings: DetectSettings = Det
     runs = runs[(runs[:, 1] - runs[:, 0]) >= min_len] if len(runs) else runs.reshape(0, 2)
     means = block_means(acc, runs)
     return Detection(statistic=stat, threshold=threshold, s2_init=s2_init,
-                     blocks=runs.astype(np.int64), means=means, window=window, min_len=min_len)
+                     blocks=runs.astype(np.int64), means=means, window=window, min_len=min_len,
+                     init=(float(t0), float(t1)), note=note)
+
+
+def _first_still_interval(acc: np.ndarray, t: np.ndarray, t0: float, t1: float, f0: float,
+                          source: str) -> tuple[np.ndarray, tuple[float, float]]:
+    """The first interval as long as ``t0``-``t1`` whose mean does not wander, sliding by a
+    part at a time: any still stretch tells the noise level (a loop over candidate intervals,
+    which stops at the first still pose, not over samples)."""
+    length = t1 - t0
+    starts = np.arange(t0 + length / INIT_PARTS, t[-1] - t[0] - length, length / INIT_PARTS)
+    lo = np.searchsorted(t, t[0] + starts, side="left")
+    hi = np.searchsorted(t, t[0] + starts + length, side="left")
+    for s, i0, i1 in zip(starts, lo, hi):
+        if i1 - i0 >= 10 and wander_ratio(acc[i0:i1]) <= INIT_MAX_F:
+            return acc[i0:i1], (round(float(s), 3), round(float(s + length), 3))
+    raise ImucalError(f"the accelerometer moves during the initial still interval {t0:g}-{t1:g} "
+                      f"s (its mean wanders {f0:.0f}x more than its noise allows) and is never "
+                      f"still for {length:g} s later on: record still poses, starting with the "
+                      "sensor lying still", source=source, field="initial still period")
 
 
 def block_means(x: np.ndarray, blocks: np.ndarray) -> np.ndarray:

@@ -81,6 +81,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 
     det = detect_static(session.acc, session.t_acc, settings.detect, source=session.source)
+    if det.note:
+        warnings.append(det.note)
     det, excluded = _drop_saturated(session.acc, det)
     if excluded:
         warnings.append(f"excluded {excluded} static block(s) holding saturated accelerometer "

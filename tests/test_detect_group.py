@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 
 import imucal
-from imucal.detect import DetectSettings, detect_static, rolling_variance, runs_of_true
+from imucal.detect import (
+    INIT_MAX_F,
+    DetectSettings,
+    detect_static,
+    rolling_variance,
+    runs_of_true,
+    wander_ratio,
+)
 from imucal.errors import ImucalError
 from imucal.synth import make_session
 
@@ -50,6 +57,47 @@ def test_no_initial_still_period_is_reported():
     session, _ = make_session(poses=12, seed=3)
     with pytest.raises(ImucalError, match="initial still"):
         detect_static(session.acc, session.t_acc, DetectSettings(init=(1e6, 1e6 + 2)))
+
+
+def test_wander_ratio_tells_still_from_moving():
+    rng = np.random.default_rng(0)
+    still = rng.normal(0, 0.003, (250, 3)) + [0, 0, 1]
+    assert wander_ratio(still) < 5
+    tilted = still.copy()
+    tilted[125:] += [0.02, 0, -0.0002]  # turned by about a degree half way through
+    assert wander_ratio(tilted) > 3 * INIT_MAX_F
+    flat = still.copy()
+    flat[:, 1] = 0.0  # a constant axis (quantised) neither moves nor divides by zero
+    assert wander_ratio(flat) == pytest.approx(wander_ratio(still[:, [0, 2]]))
+
+
+@pytest.mark.parametrize("still_at_start", [0.0, 1.0, 2.0])
+def test_moving_start_learns_the_noise_from_the_first_still_stretch(still_at_start):
+    """Without a still start the threshold learned from 0.5-3 s would be motion's: blocks would
+    swallow turns and the calibration be wrong by tens of mg (measured: 51 mg, 21 degrees).
+    The first still stretch is used instead, and the user is told."""
+    session, truth = make_session(poses=30, seed=2, init_still=still_at_start)
+    r = imucal.calibrate(session)
+    assert r.detection.init != (0.5, 3.0)
+    assert r.detection.init[0] >= still_at_start  # after the first turn began
+    assert any("moves during the initial still interval 0.5-3 s" in w for w in r.warnings)
+    assert r.quality.static_norm_rms_mg[1] < 0.5
+    assert r.quality.gravity_angle_rms_deg[1] < 0.2
+    assert len(r.detection.blocks) >= 29
+
+
+def test_still_start_is_used_as_it_is():
+    session, _ = make_session(poses=12, seed=3)
+    det = detect_static(session.acc, session.t_acc)
+    assert det.init == (0.5, 3.0) and det.note is None
+
+
+def test_never_still_is_an_error():
+    rng = np.random.default_rng(4)
+    t = np.arange(6000) / 100.0
+    acc = np.cumsum(rng.normal(0, 0.01, (6000, 3)), axis=0) + [0, 0, 1]  # always drifting
+    with pytest.raises(ImucalError, match="never still for 2.5 s"):
+        detect_static(acc, t)
 
 
 def test_too_few_blocks_says_how_many():
