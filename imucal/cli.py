@@ -675,7 +675,7 @@ def synth(
                                 acc_noise=acc_noise, gyro_noise=gyro_noise, gyro_drift=drift,
                                 change_at=change_at, acc_unit=acc_unit, gyro_unit=gyro_unit)
     with progress.stage(f"writing {out}"):
-        write_session_mat(out, sess)
+        write_session_mat(out, sess, gyro_unit=gyro_unit)
         write_truth(truth, tr)
     change = "" if tr.t_change is None else f", parameters change at {tr.t_change:.1f} s"
     print(f"session         {poses} poses, {sess.duration:.1f} s, accelerometer "

@@ -25,13 +25,20 @@ def output_format(path: str | os.PathLike) -> str:
     return fmt
 
 
-def write_session_mat(path: str | os.PathLike, session: Session) -> None:
-    """A session as MATLAB v5 named variables ``acc``, ``gyro``, ``t_acc``, ``t_gyro``."""
+def write_session_mat(path: str | os.PathLike, session: Session, gyro_unit: str | None = None
+                      ) -> None:
+    """A session as MATLAB v5 named variables ``acc``, ``gyro``, ``t_acc``, ``t_gyro``;
+    ``gyro_unit="deg/s"`` writes a rad/s gyroscope in deg/s (the loader converts it back)."""
     from scipy.io import savemat
 
     data = {"acc": session.acc, "t_acc": session.t_acc}
     if session.has_gyro:
-        data |= {"gyro": session.gyro, "t_gyro": session.t_gyro}
+        gyro = session.gyro
+        if gyro_unit == "deg/s":
+            if session.gyro_unit != "rad/s":
+                raise ValueError(f"cannot write a gyroscope in {session.gyro_unit} as deg/s")
+            gyro = np.rad2deg(gyro)
+        data |= {"gyro": gyro, "t_gyro": session.t_gyro}
 
     def _w(tmp: Path) -> None:
         with open(tmp, "wb") as f:

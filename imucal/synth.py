@@ -132,7 +132,9 @@ def make_session(
     fraction of the poses) switches both sensors to freshly drawn parameters at the start of
     the turn that leaves that pose: a change of error conditions mid-session (method.md §2).
     ``gyro_drift`` is the total change of the gyroscope bias over the session, rad/s.
-    ``acc_unit`` "g", "m/s^2" or "counts"; ``gyro_unit`` "rad/s", "deg/s" or "counts".
+    ``acc_unit`` "g", "m/s^2" or "counts"; ``gyro_unit`` "rad/s", "deg/s" or "counts". A
+    session holds rad/s or counts (:class:`~imucal.session.Session`), so "deg/s" gives rad/s
+    here: write it with ``write_session_mat(..., gyro_unit="deg/s")`` for a file in deg/s.
     """
     rng = np.random.default_rng(seed)
     motion = make_motion(rng, poses, still, move, init_still)
@@ -169,9 +171,7 @@ def make_session(
         raw_a = np.round(raw_a * counts_per_g + 32768.0)
         acc_truth = _rescale(acc_truth, counts_per_g, 32768.0, 1.0)
         acc2 = _rescale(acc2, counts_per_g, 32768.0, 1.0)
-    if gyro_unit == "deg/s":
-        raw_g = np.rad2deg(raw_g)  # the loader converts back; the truth stays in rad/s
-    elif gyro_unit == "counts":
+    if gyro_unit == "counts":
         raw_g = np.round(raw_g * counts_per_rad_s + 32768.0)
         gyro_truth = _rescale(gyro_truth, counts_per_rad_s, 32768.0, 1.0)
         gyro2 = _rescale(gyro2, counts_per_rad_s, 32768.0, 1.0)
