@@ -71,7 +71,8 @@ _ACC_PREFIXES = ("a", "acc", "accl", "accel", "acceleration", "accelerometer", "
 _GYRO_PREFIXES = ("g", "w", "gyr", "gyro", "gyroscope", "omega", "angvel", "angularvelocity",
                   "angularrate")
 _TIME_NAMES = ("t", "ts", "time", "times", "timestamp", "timestamps", "seconds", "sec",
-               "elapsed", "elapsedtime", "timesec")
+               "elapsed", "elapsedtime", "timesec",
+               "zeit", "tiempo", "temps", "tempo", "tid")  # de, es, fr, it/pt, sv/da/no
 # Sample counters look like time (increasing numbers) but are not: never use them as time.
 _COUNTER_NAMES = ("n", "nsample", "nsamples", "sample", "samples", "samplenumber", "samplenr",
                   "sampleindex", "sampleidx", "samplecounter", "index", "idx", "counter", "count",
@@ -620,8 +621,11 @@ def _settle_time(part: _Part, opts: _Options) -> tuple[np.ndarray, np.ndarray]:
                           f"the rate {opts.rate:g} Hz")
         time = None
     if time is not None:
+        unit = _time_unit(part, opts)
+        if unit == "s" and part.time_unit is None and not part.time_is_datetime:
+            unit = _unit_from_steps(time, part, opts)
         with np.errstate(over="ignore", invalid="ignore"):  # non-finite times are refused below
-            t = time * TIME_UNITS[_time_unit(part, opts)]
+            t = time * TIME_UNITS[unit]
         if opts.rate is not None:
             opts.notes.append(f"{label} timestamps taken from {part.time_label} of {source}; "
                               "the given rate is not used")
@@ -649,6 +653,28 @@ def _time_unit(part: _Part, opts: _Options) -> str:
     opts.notes.append(f"{part.time_label} of {part.source} looks like {part.time_unit} but "
                       f"time_unit={opts.time_unit} was given; using {opts.time_unit}")
     return opts.time_unit
+
+
+def _unit_from_steps(time: np.ndarray, part: _Part, opts: _Options) -> str:
+    """"s", unless that would put the samples more than a second apart: then the first of ms,
+    us, ns that gives an IMU's rate (loggers write integer ms or ns timestamps, often since
+    boot, under names like "timestamp" that say no unit)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        step = np.diff(time[: min(len(time), 100_001)])
+    step = step[np.isfinite(step) & (step > 0)]
+    if len(step) == 0:
+        return "s"
+    median = float(np.median(step))
+    if median <= 1.0:
+        return "s"
+    for unit in ("ms", "us", "ns"):
+        dt = median * TIME_UNITS[unit]
+        if 1.0 / MAX_RATE_HZ <= dt <= 1.0:
+            opts.notes.append(f"{part.time_label} of {part.source} read in {unit}: its median "
+                              f"step {median:g} means {1.0 / dt:.4g} Hz in {unit}, "
+                              f"{1.0 / median:.2g} Hz in seconds (set --time-unit to override)")
+            return unit
+    return "s"
 
 
 def _check_timestamps(t: np.ndarray, label: str, source: str) -> None:

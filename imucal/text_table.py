@@ -9,6 +9,7 @@ the line and the field at fault.
 from __future__ import annotations
 
 import io
+import re
 import warnings
 from typing import TYPE_CHECKING
 
@@ -162,15 +163,41 @@ def _parse_careful(body: bytes, sep: str, names: list[str] | None, decimal_comma
                        new_columns=keys, encoding="utf8-lossy", quote_char=None)
     if names is None and n_cols > 1 and text.get_column(keys[-1]).null_count() == text.height:
         n_cols -= 1  # a trailing separator on every line is not a column
+    first = text.row(0) if text.height else (None,) * n_cols
+    dates = frozenset(i for i in range(n_cols)
+                      if first[i] is not None and _DATETIME.match(first[i].strip(" \t\"'")))
 
     def column(i: int) -> np.ndarray:
         series = text.get_column(keys[i])
+        label = f"column {names[i]!r}" if names else f"column {i + 1}"
+        if i in dates:
+            return _datetime_seconds(series, label, source, lines)
         if decimal_comma:
             series = series.str.replace(",", ".", literal=True)
-        label = f"column {names[i]!r}" if names else f"column {i + 1}"
         return series_to_float(series, label, source, lines)
 
-    return Table(source, names, n_cols, column)
+    return Table(source, names, n_cols, column, seconds_cols=dates)
+
+
+# A date and a time of day (ISO 8601 and its common variants): loggers write time this way.
+_DATETIME = re.compile(r"^\d{4}[-/.]\d{1,2}[-/.]\d{1,2}[ T]\d{1,2}:\d{2}")
+
+
+def _datetime_seconds(series: pl.Series, label: str, source: str,
+                      lines: np.ndarray | None) -> np.ndarray:
+    """Date-times (with or without a UTC offset) as seconds since the epoch; a field that is
+    no date-time is reported with its line."""
+    import polars as pl
+
+    stripped = series.str.strip_chars().str.strip_chars("\"'")
+    parsed = stripped.str.to_datetime(strict=False, time_unit="us")
+    bad = (parsed.is_null() & stripped.is_not_null()).arg_true()
+    if bad.len():
+        row = int(bad[0])
+        where = f"line {lines[row]}" if lines is not None and row < lines.size else f"row {row}"
+        raise ImucalError(f"{label}: {stripped[row]!r} at {where} is not a date-time like the "
+                          f"first one, {stripped[0]!r}", source=source, field="time")
+    return (parsed.dt.epoch("us").cast(pl.Float64) / 1e6).fill_null(float("nan")).to_numpy()
 
 
 def _clean_body(body: bytes, whitespace: bool) -> bytes:

@@ -320,6 +320,54 @@ def test_time_units(tmp_path):
     np.testing.assert_allclose(s.t_acc, t, rtol=0, atol=1e-9)
 
 
+def test_unnamed_integer_timestamps_in_ms_or_ns(tmp_path):
+    """Loggers write integer ms or ns (often since boot) under names that say no unit; as
+    seconds they would mean one sample in days. The unit whose step gives an IMU's rate is
+    used, and said."""
+    acc, gyro, t = make_signals()
+    for unit, scale, offset in (("ms", 1e3, 5_000_123), ("ns", 1e9, 123_456_789_012_345)):
+        stamps = np.round(t * scale) + offset
+        path = write_csv(tmp_path / f"{unit}.csv", ["timestamp", *AXES6],
+                         np.hstack([stamps[:, None], acc, gyro]))
+        s = load_session(path)
+        assert s.acc_rate == pytest.approx(100.0)
+        np.testing.assert_allclose(s.t_acc - s.t_acc[0], t - t[0], atol=1e-9)
+        assert any(f"read in {unit}" in n for n in s.notes), s.notes
+    # seconds stay seconds, and an explicit unit is obeyed
+    plain = write_csv(tmp_path / "s.csv", ["timestamp", *AXES6], np.hstack([t[:, None], acc, gyro]))
+    assert not any("read in" in n for n in load_session(plain).notes)
+
+
+def test_datetime_strings_in_text(tmp_path):
+    acc, gyro, t = make_signals(50)
+    import datetime
+
+    start = datetime.datetime(2024, 5, 1, 12, 0, 0)
+    for fmt, suffix in (("%Y-%m-%d %H:%M:%S.%f", ""), ("%Y-%m-%dT%H:%M:%S.%f", "Z")):
+        stamps = [(start + datetime.timedelta(seconds=float(ti))).strftime(fmt) + suffix
+                  for ti in t]
+        rows = [",".join([stamp, *(repr(float(v)) for v in row)])
+                for stamp, row in zip(stamps, np.hstack([acc, gyro]))]
+        path = _text(tmp_path / "dt.csv", "time," + ",".join(AXES6) + "\n" + "\n".join(rows) + "\n")
+        s = load_session(path)
+        np.testing.assert_allclose(s.t_acc - s.t_acc[0], t - t[0], atol=2e-6)
+        assert s.t_acc[0] == pytest.approx(1714564800.0 + t[0], abs=1e-3)
+        np.testing.assert_array_equal(s.acc, acc)
+    rows[7] = "yesterday" + rows[7][rows[7].index(","):]
+    path = _text(tmp_path / "bad.csv", "time," + ",".join(AXES6) + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(ImucalError, match=r"bad.csv: time: column 'time': 'yesterday' at line 9 "
+                                          r"is not a date-time"):
+        load_session(path)
+
+
+def test_time_column_named_in_other_languages(tmp_path):
+    acc, gyro, t = make_signals()
+    for name in ("Zeit", "tiempo", "Temps"):
+        path = write_csv(tmp_path / "lang.csv", [name, *AXES6], np.hstack([t[:, None], acc, gyro]),
+                         sep=";")
+        assert_session(load_session(path), acc, gyro, t)
+
+
 def test_units_explicit_and_guessed(tmp_path):
     acc, gyro, t = make_signals()
     m = np.hstack([t[:, None], acc * 9.80665, np.rad2deg(gyro)])
