@@ -220,6 +220,8 @@ def load_session(
     else:
         parts = _extract(read_file(paths[0]), ("acc",), opts)
         parts.update(_extract(read_file(paths[1]), ("gyro",), opts))
+    if gyro_path is None and "gyro" in parts:
+        _own_rows(parts["acc"], parts["gyro"], opts)
 
     acc, t_acc = _settle_time(parts["acc"], opts)
     gyro = t_gyro = None
@@ -600,6 +602,29 @@ def _single_matrix(content: Variables, sensors: tuple[str, ...], shared: str | N
 
 
 # --- time and non-finite samples -----------------------------------------------------------------
+
+
+def _own_rows(acc: _Part, gyro: _Part, opts: _Options) -> None:
+    """Two sensors on rows of their own in one timed table (two logs merged on time: each row
+    holds one sensor's values and leaves the other's empty): each sensor keeps its own rows.
+
+    Only when many rows hold one sensor and not the other; a row missing both, or a few
+    missing values, stay for the gap bridging (or its refusal) as before."""
+    if (acc.time is None or gyro.time is None or len(acc.values) != len(gyro.values)
+            or not (acc.time is gyro.time or np.array_equal(acc.time, gyro.time,
+                                                            equal_nan=True))):
+        return  # not rows of one table
+    has_a = np.isfinite(acc.values).any(axis=1)
+    has_g = np.isfinite(gyro.values).any(axis=1)
+    n = len(has_a)
+    one_only = np.count_nonzero(has_a != has_g)
+    if one_only <= max(MAX_BRIDGED_RUN, MAX_BRIDGED_FRACTION * n):
+        return
+    for part, own in ((acc, has_a), (gyro, has_g)):
+        part.values, part.time = part.values[own], part.time[own]
+    opts.notes.append(f"{acc.source}: the accelerometer and the gyroscope are on rows of their "
+                      f"own ({int(has_a.sum())} and {int(has_g.sum())} of {n}); each sensor "
+                      "keeps its own rows and timestamps")
 
 
 def _settle_time(part: _Part, opts: _Options) -> tuple[np.ndarray, np.ndarray]:

@@ -34,6 +34,10 @@ def read_text(data: bytes, source: str) -> Table:
     if any(tok and not _is_number(tok) for tok in fields):
         names = [tok.strip().strip("\"'") for tok in fields]
         body_start = end + 1
+        units, after = _units_row(data, body_start, sep, len(names))
+        if units is not None:  # "s, m/s^2, ..." under the names: read as "name (unit)"
+            names = [f"{n} ({u})" if u else n for n, u in zip(names, units)]
+            body_start = after
     else:
         body_start = start
         names = _commented_header(comments, sep, len(fields))
@@ -41,6 +45,24 @@ def read_text(data: bytes, source: str) -> Table:
     first_line = data.count(b"\n", 0, body_start) + 1  # 1-based file line of the body's start
     decimal_comma = sep == ";" and b"," in body[:4096]  # "1,5;2,0": European spreadsheets
     return _parse_body(body, sep, names, decimal_comma, first_line, source)
+
+
+def _units_row(data: bytes, pos: int, sep: str, n_fields: int) -> tuple[list[str] | None, int]:
+    """A second header line of units (``s, g, g, g, deg/s, ...``): its fields and where the data
+    start after it, or None when the line holds any number (it is data)."""
+    end = data.find(b"\n", pos)
+    end = len(data) if end < 0 else end
+    line = data[pos:end].decode("utf-8", errors="replace").strip("\r")
+    fields = [tok.strip().strip("\"'") for tok in _split_fields(line, sep)]
+    if (len(fields) != n_fields or not any(fields)
+            or any(tok and _is_number(tok) for tok in fields)
+            or not all(len(tok) <= 12 and _UNIT_CHARS.match(tok) for tok in fields)):
+        return None, pos
+    return [tok.strip("[]()") for tok in fields], end + 1
+
+
+# What a unit cell may hold: "s", "m/s^2", "[deg/s]", "(g)", "µs", "°/s", "rad s-1".
+_UNIT_CHARS = re.compile(r"^[\w/^°µ²()\[\] .*-]*$")
 
 
 def _skip_preamble(data: bytes) -> tuple[int | None, int, list[str]]:

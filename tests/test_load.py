@@ -360,6 +360,54 @@ def test_datetime_strings_in_text(tmp_path):
         load_session(path)
 
 
+def test_a_row_of_units_under_the_header(tmp_path):
+    acc, gyro, t = make_signals()
+    m = np.hstack([t[:, None], acc * 9.80665, np.rad2deg(gyro)])
+    for units in ("s,m/s^2,m/s^2,m/s^2,deg/s,deg/s,deg/s", "[s],[m/s^2],[m/s^2],[m/s^2],[°/s],"
+                  "[°/s],[°/s]"):
+        rows = "\n".join(",".join(repr(float(v)) for v in row) for row in m)
+        path = _text(tmp_path / "units.csv", "time,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z\n"
+                     + units + "\n" + rows + "\n")
+        s = load_session(path)
+        assert s.acc_unit == "m/s^2"
+        np.testing.assert_allclose(s.gyro, gyro, rtol=1e-12)
+        np.testing.assert_array_equal(s.t_acc, t)
+    # a bad value is still reported on its own line of the file
+    bad = rows.split("\n")
+    bad[4] = bad[4].replace(bad[4].split(",")[2], "oops")
+    path = _text(tmp_path / "bad.csv", "time,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z\n" + units
+                 + "\n" + "\n".join(bad) + "\n")
+    with pytest.raises(ImucalError, match="'oops' at line 7"):
+        load_session(path)
+
+
+def test_two_sensors_on_rows_of_their_own(tmp_path):
+    """Two logs merged on time: each row holds one sensor and leaves the other's cells empty
+    (here the gyroscope at twice the accelerometer's rate)."""
+    acc, _, t = make_signals(200)
+    _, gyro, _ = make_signals(400, seed=1)
+    t_g = np.arange(400) / 200.0
+    lines = []
+    for i, tg in enumerate(t_g):
+        g = ",".join(repr(float(v)) for v in gyro[i])
+        if i % 2 == 0:
+            a = ",".join(repr(float(v)) for v in acc[i // 2])
+            lines.append(f"{float(tg)!r},{a},,,")
+        lines.append(f"{float(tg)!r},,,,{g}")
+    path = _text(tmp_path / "merged.csv", "t," + ",".join(AXES6) + "\n" + "\n".join(lines) + "\n")
+    s = load_session(path)
+    assert_session(s, acc, gyro, t_g[::2], t_g)
+    assert any("rows of their own" in n for n in s.notes)
+    # a few rows without the accelerometer are dropouts, bridged as before
+    m = np.hstack([t_g[::2, None], acc, gyro[::2]])
+    rows = [",".join(repr(float(v)) for v in row) for row in m]
+    rows[9] = repr(float(m[9, 0])) + ",,,," + ",".join(repr(float(v)) for v in m[9, 4:])
+    s = load_session(_text(tmp_path / "few.csv", "t," + ",".join(AXES6) + "\n"
+                           + "\n".join(rows) + "\n"))
+    assert not any("rows of their own" in n for n in s.notes)
+    assert any("bridged 1 NaN/Inf samples" in n for n in s.notes) and len(s.acc) == 200
+
+
 def test_time_column_named_in_other_languages(tmp_path):
     acc, gyro, t = make_signals()
     for name in ("Zeit", "tiempo", "Temps"):
