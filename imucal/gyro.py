@@ -13,6 +13,7 @@ from .integrate import SLAB, StepLayout, _calibrator, _mul, product_rows
 from .lm import FactoredCov, FitReport, fit_tikhonov, sandwich_cov, trace_of
 from .models import GYRO_THETA0, SensorModel, gyro_T
 from .quaternion import rotate_inverse, to_matrix
+from .saturation import blocks_with
 
 
 @dataclass(frozen=True)
@@ -388,8 +389,7 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     tr_all = Transitions(w_raw, t, block_times)
     excluded = np.zeros(len(tr_all), dtype=bool)
     if saturated is not None and np.any(saturated):
-        cs = np.concatenate(([0], np.cumsum(saturated)))
-        excluded = (cs[tr_all.ends + 1] - cs[tr_all.starts]) > 0
+        excluded = blocks_with(saturated, np.column_stack([tr_all.starts, tr_all.ends + 1]))
         if excluded.all():
             raise ImucalError(f"all {len(excluded)} rotations between still poses pass through "
                               "saturated gyroscope samples (flat at the sensor's limit): turn "
