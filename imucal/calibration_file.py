@@ -76,8 +76,7 @@ def result_to_dict(result: Result) -> dict:
                      "nominal_scale": _f(seg.gyro.nominal_scale),
                      "nominal_scale_source": seg.gyro.nominal_how,
                      "transitions": len(seg.gyro.u_meas),
-                     "transitions_excluded": (0 if seg.gyro.excluded is None
-                                              else int(seg.gyro.excluded.sum())),
+                     "transitions_excluded": int(seg.gyro.excluded.sum()),
                      "cost": {"start": _f(seg.gyro.report.cost_start),
                               "end": _f(seg.gyro.report.cost)}}
         segs.append({"t_start": _f(seg.t_start), "t_end": _f(seg.t_end),

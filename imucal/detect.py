@@ -273,7 +273,7 @@ def detect_static(acc: np.ndarray, t: np.ndarray, settings: DetectSettings = Det
         raise ImucalError(f"the initial still interval {t0:g}-{t1:g} s holds only {len(init)} "
                           "samples; the session must start with the device still for a few "
                           "seconds", source=source, field="initial still period")
-    if increasing:
+    if increasing:  # (the search below slides slices along the time axis)
         f = wander_ratio(init)
         if f > INIT_MAX_F:
             init, (t0, t1) = _first_still_interval(acc, t, t0, t1, f, source)

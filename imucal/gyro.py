@@ -197,8 +197,7 @@ class GyroFit:
     t_transition: np.ndarray  # (K, 2) [t_start, t_end] of each transition
     rotation_angle: np.ndarray  # (K,) integrated rotation angle, rad
     static_bias: np.ndarray  # (3,) the bias measured on the still blocks, raw units
-    # (K,) transitions left out of the fit (through saturated samples); None: none left out
-    excluded: np.ndarray | None = None
+    excluded: np.ndarray  # (K,) bool: transitions left out of the fit (saturated samples)
     warnings: list[str] = field(default_factory=list)
 
     def model_for(self, theta: np.ndarray) -> SensorModel:

@@ -65,11 +65,9 @@ def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
     if gyro_fits:
         # Transitions through saturated samples are predicted wrong by any calibration:
         # they are left out of the fit and of its figure (and shown in the recording).
-        kept = [np.ones(len(g.u_meas), bool) if g.excluded is None else ~g.excluded
-                for g in gyro_fits]
-        after = np.concatenate([g.angle_after[k] for g, k in zip(gyro_fits, kept)])
-        befores = [None if g.angle_before is None else g.angle_before[k]
-                   for g, k in zip(gyro_fits, kept)]
+        after = np.concatenate([g.angle_after[~g.excluded] for g in gyro_fits])
+        befores = [None if g.angle_before is None else g.angle_before[~g.excluded]
+                   for g in gyro_fits]
         before = None
         if all(b is not None for b in befores):
             before = _rms(np.concatenate(befores))

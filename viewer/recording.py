@@ -585,7 +585,7 @@ def _log_results(result: Result, rec: rr.RecordingStream) -> None:
                 std=g.std, param_names=names, **{"lambda": float(g.lam)},
                 bias_source=g.bias_source, nominal_scale=float(g.nominal_scale),
                 transitions=int(len(g.u_meas)),
-                transitions_excluded=int(0 if g.excluded is None else g.excluded.sum()),
+                transitions_excluded=int(g.excluded.sum()),
                 cost_start=float(g.report.cost_start),
                 cost_end=float(g.report.cost)), static=True)
     ga = q.gravity_angle_rms_deg or (None, None)
