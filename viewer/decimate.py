@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from imucal.detect import runs_of_true
+
 
 def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, np.ndarray]:
     """``(t, x)`` itself when it has at most ``max_rows`` rows, else its min/max envelope.
@@ -33,14 +35,7 @@ def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, n
     pad = n_buckets * size - n
     # Pad the last bucket by repeating its last sample: it changes neither its min nor its max.
     xp = np.concatenate([x2, np.repeat(x2[-1:], pad, axis=0)]) if pad else x2
-    xb = xp.reshape(n_buckets, size, k)
-    i_min = np.argmin(xb, axis=1)
-    i_max = np.argmax(xb, axis=1)
-    first = np.minimum(i_min, i_max)[:, None, :]
-    second = np.maximum(i_min, i_max)[:, None, :]
-    v = np.empty((n_buckets, 2, k), dtype=x2.dtype)
-    v[:, 0] = np.take_along_axis(xb, first, axis=1)[:, 0]
-    v[:, 1] = np.take_along_axis(xb, second, axis=1)[:, 0]
+    v = _min_max_rows(xp.reshape(n_buckets, size, k))
     starts = np.arange(n_buckets) * size
     last = np.minimum(starts + size, n) - 1
     tt = np.column_stack([t[starts], t[(starts + last + 1) // 2]])
@@ -59,8 +54,7 @@ def detail_envelope(t: np.ndarray, x: np.ndarray, keep: np.ndarray, max_rows: in
     """
     keep = np.asarray(keep, bool)
     x2 = x[:, None] if x.ndim == 1 else x
-    step = np.diff(np.concatenate(([1], keep.view(np.int8), [1])))
-    starts, ends = np.flatnonzero(step == -1), np.flatnonzero(step == 1)  # runs of ~keep
+    starts, ends = runs_of_true(~keep).T
     lengths = ends - starts
     n_drop = int(lengths.sum())
     budget = max_rows // 2 - len(starts)  # buckets left after one partial bucket per run
@@ -74,12 +68,7 @@ def detail_envelope(t: np.ndarray, x: np.ndarray, keep: np.ndarray, max_rows: in
     j = np.arange(int(padded.sum())) - np.repeat(np.cumsum(padded) - padded, padded)
     idx = starts[run_of] + np.minimum(j, lengths[run_of] - 1)
     k = x2.shape[1]
-    xb = x2[idx].reshape(-1, size, k)
-    i_min = np.argmin(xb, axis=1)
-    i_max = np.argmax(xb, axis=1)
-    v = np.empty((len(xb), 2, k), dtype=x2.dtype)
-    v[:, 0] = np.take_along_axis(xb, np.minimum(i_min, i_max)[:, None, :], axis=1)[:, 0]
-    v[:, 1] = np.take_along_axis(xb, np.maximum(i_min, i_max)[:, None, :], axis=1)[:, 0]
+    v = _min_max_rows(x2[idx].reshape(-1, size, k))
     first = idx[::size]
     middle = idx[size // 2::size]
     te = np.column_stack([t[first], t[middle]]).ravel()
@@ -94,3 +83,13 @@ def detail_envelope(t: np.ndarray, x: np.ndarray, keep: np.ndarray, max_rows: in
     out = np.empty((len(is_kept), k), dtype=x2.dtype)
     out[at], out[is_kept] = v.reshape(-1, k), x2[keep]
     return tt, (out[:, 0] if x.ndim == 1 else out)
+
+
+def _min_max_rows(xb: np.ndarray) -> np.ndarray:
+    """(buckets, 2, k): each bucket's minimum and maximum per column, in the order they occur."""
+    i_min = np.argmin(xb, axis=1)
+    i_max = np.argmax(xb, axis=1)
+    v = np.empty((len(xb), 2, xb.shape[2]), dtype=xb.dtype)
+    v[:, 0] = np.take_along_axis(xb, np.minimum(i_min, i_max)[:, None, :], axis=1)[:, 0]
+    v[:, 1] = np.take_along_axis(xb, np.maximum(i_min, i_max)[:, None, :], axis=1)[:, 0]
+    return v
