@@ -216,9 +216,9 @@ def _datetime_seconds(series: pl.Series, label: str, source: str,
     bad = (parsed.is_null() & stripped.is_not_null()).arg_true()
     if bad.len():
         row = int(bad[0])
-        where = f"line {lines[row]}" if lines is not None and row < lines.size else f"row {row}"
-        raise ImucalError(f"{label}: {stripped[row]!r} at {where} is not a date-time like the "
-                          f"first one, {stripped[0]!r}", source=source, field="time")
+        raise ImucalError(f"{label}: {stripped[row]!r} at {_where(row, lines)} is not a "
+                          f"date-time like the first one, {stripped[0]!r}", source=source,
+                          field="time")
     return (parsed.dt.epoch("us").cast(pl.Float64) / 1e6).fill_null(float("nan")).to_numpy()
 
 
@@ -290,8 +290,12 @@ def series_to_float(series: pl.Series, label: str, source: str,
     bad = (numbers.is_null() & ~missing).arg_true()
     if bad.len():
         row = int(bad[0])
-        where = f"line {lines[row]}" if lines is not None and row < lines.size else f"row {row}"
-        raise ImucalError(f"{label}: text {stripped[row]!r} at {where} where a number was "
-                          f"expected ({plural(bad.len(), 'bad field')} in all)",
+        raise ImucalError(f"{label}: text {stripped[row]!r} at {_where(row, lines)} where a "
+                          f"number was expected ({plural(bad.len(), 'bad field')} in all)",
                           source=source)
     return numbers.fill_null(float("nan")).to_numpy()
+
+
+def _where(row: int, lines: np.ndarray | None) -> str:
+    """Where a row of the table stands in the file, for messages."""
+    return f"line {lines[row]}" if lines is not None and row < lines.size else f"row {row}"
