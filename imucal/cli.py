@@ -45,9 +45,6 @@ def _settings_defaults() -> dict[str, Any]:
 
 
 DEFAULTS: dict[str, Any] = _settings_defaults()
-LOAD_DEFAULTS: dict[str, Any] = {"gyro_path": None, "rate": None, "acc_unit": "auto",
-                                 "gyro_unit": "auto", "columns": None, "time_unit": "s",
-                                 "acc_only": False}
 ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 
 app = typer.Typer(
@@ -706,7 +703,8 @@ def view(
     settings = _settings(**_pick(options, SETTING_OPTIONS))
     load_kw = _load_kwargs(**_pick(options, INPUT_OPTIONS))
     gyro = options["gyro"]
-    load_options = {key: v for key, v in load_kw.items() if v != LOAD_DEFAULTS[key]}
+    load_defaults = _load_kwargs(**{name: default for name, _, default in INPUT_OPTIONS})
+    load_options = {key: v for key, v in load_kw.items() if v != load_defaults[key]}
     overrides = {key: v for key, v in settings.items() if v != DEFAULTS[key]}
     if not target.exists():
         raise ImucalError("file not found", source=str(target))
