@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/check_group.py [--seeds 40] [--poses 40 120]
 
-``imucal.group.best_split`` scores every boundary with a Gauss-Newton model and fits only the
+``imucal.stages.group.best_split`` scores every boundary with a Gauss-Newton model and fits only the
 best few exactly; the exhaustive search (the original implementation, kept here) fits both
 sides of every boundary. For synthetic sessions, steady and with a change of parameters at a
 random place, both run on the same block means and must return the same boundaries, the same
@@ -18,8 +18,9 @@ import time
 import numpy as np
 
 import imucal
-import imucal.group as G
 import imucal.pipeline as P
+import imucal.stages.group as G
+from imucal.settings import Settings
 from imucal.synth import make_session
 
 
@@ -69,7 +70,7 @@ def main() -> int:
     captured = {}
     real = P.group_blocks
 
-    def capture(means, theta, lam, settings=G.GroupSettings()):
+    def capture(means, theta, lam, settings=Settings().group):
         captured.update(m=means, theta=theta, lam=lam, settings=settings)
         return real(means, theta, lam, settings)
 

@@ -7,7 +7,8 @@ growing length and on the real imu_tk Xsens recording.
 For every size it
 
 * generates a session with the project's own generator (``imucal.synth.make_session``, about
-  5 s per pose: 3 s still, 2 s turning) and writes it as .mat (``imucal.export.write_session_mat``)
+  5 s per pose: 3 s still, 2 s turning) and writes it as .mat
+  (``imucal.io.export.write_session_mat``)
   into a temporary directory;
 * times each stage in a fresh worker process (load, detect, accelerometer incl. the L-curve,
   group, gyroscope, apply + quality figures, JSON, .rrd), by wrapping the functions
@@ -143,8 +144,8 @@ class StageClock:
 
 def _patch_pipeline(clock: StageClock) -> list[str]:
     """Point the names pipeline.calibrate uses at timing wrappers; return what was missing."""
-    import imucal.calibration
     import imucal.pipeline as pl
+    import imucal.stages.apply
 
     stages = {"detect_static": "detect", "calibrate_accelerometer": "accel",
               "group_blocks": "group", "block_mean_cov": "gyro", "calibrate_gyroscope": "gyro",
@@ -157,7 +158,7 @@ def _patch_pipeline(clock: StageClock) -> list[str]:
             continue
         fn = getattr(fn, "__wrapped__", fn)
         setattr(pl, attr, clock.wrap(stage, fn))
-    cls = imucal.calibration.Calibration
+    cls = imucal.stages.apply.Calibration
     apply = getattr(cls.apply, "__wrapped__", cls.apply)
     cls.apply = clock.wrap("apply", apply)
     return missing
@@ -275,7 +276,7 @@ def make_session_file(size: Size, directory: Path) -> tuple[list[str], float]:
         return [str(path)], 0.0
     # In a child process: this one must stay small, or every child forked from it later
     # starts with (and reports) its resident memory.
-    code = ("import sys; from imucal.export import write_session_mat; "
+    code = ("import sys; from imucal.io.export import write_session_mat; "
             "from imucal.synth import make_session; "
             f"s, _ = make_session(poses={size.poses}, seed={size.seed}, still=3.0, move=2.0, "
             f"acc_rate={size.acc_rate!r}, gyro_rate={size.gyro_rate!r}); "
@@ -399,8 +400,8 @@ def gyro_problem(minutes: float, acc_rate: float = 100.0, gyro_rate: float = 100
     import numpy as np
 
     import imucal
-    from imucal.gyro import Transitions
     from imucal.models import GYRO_THETA0, SensorModel, gyro_T
+    from imucal.stages.gyro import Transitions
     from imucal.synth import make_session
 
     session, _ = make_session(poses=max(int(round(minutes * 12)), 2), seed=1, still=3.0,
@@ -425,7 +426,8 @@ def baselines(repeat: int) -> dict:
     """Naive vs product, side by side on the same short session (2 min at 100 Hz)."""
     import numpy as np
 
-    from imucal.detect import combine_variances, rolling_variance
+    from imucal.numerics.windows import rolling_variance
+    from imucal.stages.detect import combine_variances
 
     out = {}
     p = gyro_problem(2.0)
@@ -469,7 +471,7 @@ def complex_step_jacobian(p: dict, theta, h: float = 1e-20):
     One complex evaluation per parameter, each about four real ones."""
     import numpy as np
 
-    from imucal.integrate import SLAB, _mul, product_rows, rk4_raw
+    from imucal.numerics.rk4 import SLAB, _mul, product_rows, rk4_raw
 
     tr, u_prev, model_of = p["tr"], p["u_prev"], p["model_of"]
     layout = tr.layout
@@ -520,12 +522,12 @@ def jacobian_methods(repeat: int, minutes: float) -> dict:
     import numpy as np
     from scipy.optimize._numdiff import approx_derivative
 
-    from imucal.lm import _VectorFunction, fit_tikhonov
+    from imucal.numerics.least_squares import _VectorFunction, fit_tikhonov
 
     p = gyro_problem(minutes)
     res, theta = p["res"], p["theta"]
     theta0 = p["theta0"]
-    lam = p["result"].settings.gyro_lam
+    lam = p["result"].settings.gyro_lambda
 
     def _fd2(th):  # the product's own forward differences (scipy's "2-point" rule)
         vf = _VectorFunction.__new__(_VectorFunction)
@@ -576,13 +578,13 @@ STARTUP_STEPS = [
     ("python -c pass", "pass"),
     ("+ numpy", "import numpy"),
     ("+ imucal.cli (all `imucal --help` loads)", "import numpy, imucal.cli"),
-    ("+ imucal.load", "import numpy, imucal.cli, imucal.load"),
-    ("+ imucal.pipeline, imucal.calibration_file",
-     "import numpy, imucal.cli, imucal.load, imucal.pipeline, imucal.calibration_file"),
-    ("(for comparison) + polars", "import numpy, imucal.cli, imucal.load, imucal.pipeline, "
-     "imucal.calibration_file, polars"),
+    ("+ imucal.io.load", "import numpy, imucal.cli, imucal.io.load"),
+    ("+ imucal.pipeline, imucal.io.calibration_file",
+     "import numpy, imucal.cli, imucal.io.load, imucal.pipeline, imucal.io.calibration_file"),
+    ("(for comparison) + polars", "import numpy, imucal.cli, imucal.io.load, imucal.pipeline, "
+     "imucal.io.calibration_file, polars"),
     ("(for comparison) + scipy.optimize",
-     "import numpy, imucal.cli, imucal.load, imucal.pipeline, imucal.calibration_file, "
+     "import numpy, imucal.cli, imucal.io.load, imucal.pipeline, imucal.io.calibration_file, "
      "scipy.optimize"),
 ]
 

@@ -17,29 +17,30 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 _WHERE = {
-    "CalibratedSignals": "calibration",
-    "Calibration": "calibration",
-    "load_calibration": "calibration_file",
-    "save_calibration": "calibration_file",
+    "CalibratedSignals": "stages.apply",
+    "Calibration": "stages.apply",
+    "load_calibration": "io.calibration_file",
+    "save_calibration": "io.calibration_file",
     "ImucalError": "errors",
-    "Result": "pipeline",
+    "Result": "result",
     "Settings": "settings",
     "calibrate": "pipeline",
     "Session": "session",
-    "load_session": "load",
+    "load_session": "io.load",
 }
 
 __all__ = ["CalibratedSignals", "Calibration", "ImucalError", "Result", "Session", "Settings",
            "calibrate", "load_calibration", "load_session", "save_calibration"]
 
 if TYPE_CHECKING:
-    from .calibration import CalibratedSignals, Calibration
-    from .calibration_file import load_calibration, save_calibration
-    from .errors import ImucalError
-    from .load import load_session
-    from .pipeline import Result, calibrate
-    from .session import Session
-    from .settings import Settings
+    from imucal.errors import ImucalError
+    from imucal.io.calibration_file import load_calibration, save_calibration
+    from imucal.io.load import load_session
+    from imucal.pipeline import calibrate
+    from imucal.result import Result
+    from imucal.session import Session
+    from imucal.settings import Settings
+    from imucal.stages.apply import CalibratedSignals, Calibration
 
 
 def __getattr__(name: str) -> Any:

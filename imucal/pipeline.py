@@ -3,58 +3,26 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from .accel import (
-    AccFit,
+from imucal.errors import ImucalError
+from imucal.numerics.directions import distinct_orientations
+from imucal.result import Result, Segment
+from imucal.session import STANDARD_GRAVITY, Session, validate
+from imucal.settings import Settings
+from imucal.stages.accel import (
     block_mean_cov,
     calibrate_accelerometer,
     make_nominal,
     select_points,
 )
-from .calibration import CalibratedSignals, Calibration, SegmentModels
-from .detect import Detection, detect_static
-from .errors import ImucalError
-from .group import Grouping, group_blocks
-from .gyro import GyroFit, calibrate_gyroscope
-from .quality import Quality, distinct_orientations, quality_figures
-from .saturation import blocks_with, saturated_mask
-from .session import STANDARD_GRAVITY, Session, validate
-from .settings import Settings
-
-
-@dataclass(frozen=True)
-class Segment:
-    index: int
-    blocks: tuple[int, int]  # [first, last + 1) block indices
-    t_start: float  # start of its first still block, s
-    t_end: float  # end of its last still block, s
-    acc: AccFit
-    gyro: GyroFit | None
-    orientations: int  # distinct still orientations (15 degrees apart)
-
-
-@dataclass(frozen=True)
-class Result:
-    """Everything a run produced: the calibration and every intermediate the viewer shows."""
-
-    session: Session
-    settings: Settings
-    detection: Detection
-    block_times: np.ndarray  # (B, 2) [t_start, t_end) of each static block, s
-    whole: AccFit  # the first whole-session accelerometer fit (used for grouping)
-    grouping: Grouping
-    segments: list[Segment]
-    calibration: Calibration
-    calibrated: CalibratedSignals
-    quality: Quality
-    g_in: float
-    warnings: list[str] = field(default_factory=list)
-
-    def apply(self, session: Session) -> CalibratedSignals:
-        return self.calibration.apply(session)
+from imucal.stages.apply import Calibration, SegmentModels
+from imucal.stages.detect import Detection, detect_static
+from imucal.stages.group import group_blocks
+from imucal.stages.gyro import calibrate_gyroscope
+from imucal.stages.quality import quality_figures
+from imucal.stages.saturation import blocks_with, saturated_mask
 
 
 def resolve_g(session: Session, g: float | None) -> tuple[float, float, str]:
@@ -144,7 +112,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         acc_unit_raw=session.acc_unit, acc_unit=acc_unit, g=g_out,
         gyro_unit_raw=session.gyro_unit if session.has_gyro else None)
     calibrated = calibration.apply(session)
-    quality = quality_figures(session, det, calibrated, segments, g_in, g_out)
+    quality = quality_figures(session, det, calibrated,
+                              [s.gyro for s in segments if s.gyro is not None], g_in, g_out)
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
                   calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings)

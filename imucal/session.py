@@ -62,7 +62,7 @@ def validate(session: Session) -> None:
 
     The loaders check files as they read them; this guards sessions built in code.
     """
-    from .errors import ImucalError
+    from imucal.errors import ImucalError
 
     def check(x: np.ndarray | None, t: np.ndarray | None, name: str) -> None:
         if x is None:

@@ -1,75 +1,122 @@
-"""Every setting of method.md in one flat, typed record, with the thesis's defaults.
+"""Every setting of method.md, declared once: its name, its default, its meaning.
+
+``Settings`` is the one record a run is configured with. Each field's name is the command
+line's flag (``window`` is ``--window``, ``gyro_sensitivity`` is ``--gyro-sensitivity``; ``lam``
+is ``--lambda``, a Python keyword) and the key in calib.json's ``settings``; the defaults are
+written here and nowhere else. Each stage reads the part it needs as a small typed record
+(``Settings.detect`` ...), built from these fields and carrying no defaults of its own.
 
 Kept free of numpy and scipy so that the command line can show the defaults without importing
-them; each stage's own settings record is built on demand.
+them.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from .accel import AccSettings
-    from .detect import DetectSettings
-    from .group import GroupSettings
-    from .gyro import GyroSettings
+# L-curve grid (method.md §3): three points a decade from 1e-8 to 1e3.
+DEFAULT_LAMBDAS: tuple[float, ...] = tuple(10.0 ** (i * (11 / 33) - 8) for i in range(34))
 
 
 @dataclass(frozen=True)
 class Settings:
-    """Every setting of method.md, flat, with the thesis's defaults (see each module)."""
+    """Every setting of method.md, flat, with the thesis's defaults where it has one."""
 
-    # detector (§1)
+    # --- static detector (§1) ---
+    # Variance window and shortest still block, in samples; None: the thesis's durations
+    # (1.01 s and 1.0 s, i.e. 101 and 100 samples at its 100 Hz) at the session's own rate.
     window: int | None = None
     min_len: int | None = None
-    k: float = 2.0
-    init: tuple[float, float] = (0.5, 3.0)
-    statistic: str = "thesis"
-    # grouping (§2)
-    single_segment: bool = False
-    delta: float = 0.01
-    min_blocks: int = 12
-    # accelerometer (§3)
-    g: float | None = None
-    lam: float | str = "auto"
-    points: str = "chunks"
-    # gyroscope (§4)
-    gyro_lam: float = 1e-4
-    gyro_bias: str = "all"
-    optimise_gyro_bias: bool = False
-    gyro_nominal_scale: float | None = None
+    k: float = 2.0  # threshold multiplier on s2_init (thesis: 2)
+    init: tuple[float, float] = (0.5, 3.0)  # initial still interval, s from the first sample
+    statistic: str = "thesis"  # "thesis": M1, sum of squared variances; "imu_tk": their norm
+    # --- grouping (§2) ---
+    single_segment: bool = False  # imu_tk's behaviour: one segment for the whole session
+    delta: float = 0.01  # thesis code: 0.01 g (its text: 0.02 g), here relative to |g|
+    min_blocks: int = 12  # fewest still blocks a segment may have
+    # --- accelerometer (§3) ---
+    g: float | None = None  # |g| of the calibrated output; None: 1 g, or 9.80665 in m/s^2
+    lam: float | str = "auto"  # Tikhonov lambda: "auto" (L-curve corner) or a value >= 0
+    lambdas: tuple[float, ...] = DEFAULT_LAMBDAS  # the L-curve's grid
+    points: str = "chunks"  # "thesis", "chunks" or "mean": how still samples become points
+    n_select: int = 99  # thesis points: samples spread over each block...
+    n_group: int = 10  # ... averaged in groups of this many (also the chunks per block)
+    # --- gyroscope (§4) ---
+    gyro_lambda: float = 1e-4  # Tikhonov lambda of the gyroscope fit
+    gyro_bias: str = "all"  # "all" still blocks of the segment, or the "first" (thesis)
+    optimise_gyro_bias: bool = False  # fit the bias too, its prior the still-block estimate
+    gyro_sensitivity: float | None = None  # rad/s per raw count (datasheet), for "before"
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["init"] = list(self.init)
+        d["lambdas"] = list(self.lambdas)
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Settings:
+        """The inverse of :meth:`to_dict` (unknown keys are refused by the constructor)."""
+        d = dict(d)
+        if "init" in d:
+            d["init"] = tuple(d["init"])
+        if "lambdas" in d:
+            d["lambdas"] = tuple(d["lambdas"])
+        return cls(**d)
 
     @property
     def detect(self) -> DetectSettings:
-        from .detect import DetectSettings
-
         return DetectSettings(window=self.window, min_len=self.min_len, k=self.k,
                               init=tuple(self.init), statistic=self.statistic)
 
     @property
     def group(self) -> GroupSettings:
-        from .group import GroupSettings
-
         return GroupSettings(single_segment=self.single_segment, delta=self.delta,
                              min_blocks=self.min_blocks)
 
     @property
     def acc(self) -> AccSettings:
-        from .accel import AccSettings
-
-        return AccSettings(lam=self.lam, points=self.points)
+        return AccSettings(lam=self.lam, lambdas=tuple(self.lambdas), points=self.points,
+                           n_select=self.n_select, n_group=self.n_group)
 
     @property
     def gyro(self) -> GyroSettings:
-        from .gyro import GyroSettings
-
-        return GyroSettings(lam=self.gyro_lam, bias=self.gyro_bias,
+        return GyroSettings(lam=self.gyro_lambda, bias=self.gyro_bias,
                             optimise_bias=self.optimise_gyro_bias,
-                            nominal_scale=self.gyro_nominal_scale)
+                            nominal_scale=self.gyro_sensitivity)
+
+
+# What each stage reads (see the fields of Settings for their meaning and defaults).
+
+
+@dataclass(frozen=True)
+class DetectSettings:
+    window: int | None
+    min_len: int | None
+    k: float
+    init: tuple[float, float]
+    statistic: str
+
+
+@dataclass(frozen=True)
+class GroupSettings:
+    single_segment: bool
+    delta: float
+    min_blocks: int
+
+
+@dataclass(frozen=True)
+class AccSettings:
+    lam: float | str
+    lambdas: tuple[float, ...]
+    points: str
+    n_select: int
+    n_group: int
+
+
+@dataclass(frozen=True)
+class GyroSettings:
+    lam: float
+    bias: str
+    optimise_bias: bool
+    nominal_scale: float | None  # rad/s per raw unit (Settings.gyro_sensitivity)

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import quaternion as quat
-from .models import SensorModel, acc_T, gyro_T
-from .session import STANDARD_GRAVITY, Session
+from imucal.models import SensorModel, acc_T, gyro_T
+from imucal.numerics import quaternion as quat
+from imucal.session import STANDARD_GRAVITY, Session
 
 
 @dataclass(frozen=True)

@@ -4,15 +4,10 @@ import numpy as np
 import pytest
 
 import imucal
-from imucal.detect import (
-    INIT_MAX_F,
-    DetectSettings,
-    detect_static,
-    rolling_variance,
-    runs_of_true,
-    wander_ratio,
-)
 from imucal.errors import ImucalError
+from imucal.numerics.windows import rolling_variance, runs_of_true
+from imucal.settings import Settings
+from imucal.stages.detect import INIT_MAX_F, detect_static, wander_ratio
 from imucal.synth import make_session
 
 
@@ -46,17 +41,17 @@ def test_blocks_match_the_still_poses():
 
 def test_detector_statistic_is_m1():
     session, _ = make_session(poses=12, seed=2)
-    det = detect_static(session.acc, session.t_acc, DetectSettings(window=51))
+    det = detect_static(session.acc, session.t_acc, Settings(window=51).detect)
     var = rolling_variance(session.acc, 51)
     np.testing.assert_allclose(det.statistic, (var**2).sum(axis=1))
-    imu = detect_static(session.acc, session.t_acc, DetectSettings(window=51, statistic="imu_tk"))
+    imu = detect_static(session.acc, session.t_acc, Settings(window=51, statistic="imu_tk").detect)
     np.testing.assert_allclose(imu.statistic, np.sqrt((var**2).sum(axis=1)))
 
 
 def test_no_initial_still_period_is_reported():
     session, _ = make_session(poses=12, seed=3)
     with pytest.raises(ImucalError, match="initial still"):
-        detect_static(session.acc, session.t_acc, DetectSettings(init=(1e6, 1e6 + 2)))
+        detect_static(session.acc, session.t_acc, Settings(init=(1e6, 1e6 + 2)).detect)
 
 
 def test_wander_ratio_tells_still_from_moving():
@@ -145,7 +140,7 @@ def test_single_segment_mode():
 def test_fast_split_search_agrees_with_exhaustive():
     # best_split scores every boundary by a Gauss-Newton model and fits only the best few;
     # it must land where fitting both sides of every boundary does.
-    from imucal.group import _fit, best_split
+    from imucal.stages.group import _fit, best_split
 
     for seed, change in ((31, 0.4), (32, 0.65), (33, None)):
         session, _ = make_session(poses=36, seed=seed, change_at=change)

@@ -12,7 +12,7 @@ import polars as pl
 import scipy.io
 
 import imucal
-from imucal.load import load_session
+from imucal.io.load import load_session
 
 
 def _corpus(shared, tmp_path) -> dict[str, bytes]:

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from imucal import quaternion as quat
-from imucal.integrate import integrate_transitions, ordered_product, rk4_step_quaternions
+from imucal.numerics import quaternion as quat
+from imucal.numerics.rk4 import integrate_transitions, ordered_product, rk4_step_quaternions
 
 
 def _sequential(w, t):

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from imucal import quaternion as quat
-from imucal.gyro import GYRO_THETA0, Transitions, gyro_model_of
-from imucal.integrate import prefix_rows
+from imucal.numerics import quaternion as quat
+from imucal.numerics.rk4 import prefix_rows
+from imucal.stages.gyro import GYRO_THETA0, Transitions, gyro_model_of
 from imucal.synth import make_session
 
 

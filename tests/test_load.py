@@ -1,4 +1,4 @@
-"""imucal.load: every layout round-trips, the real recordings load, bad input explains itself."""
+"""imucal.io.load: every layout round-trips, the real recordings load, bad input explains itself."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from imucal.errors import ImucalError
-from imucal.load import load_session
+from imucal.io.load import load_session
 
 AXES6 = ["ax", "ay", "az", "gx", "gy", "gz"]
 
@@ -658,12 +658,12 @@ def test_polars_panic_is_an_imucal_error(tmp_path, monkeypatch):
     only by the readers that need it; its panic must still become one ImucalError line."""
     from polars.exceptions import PanicException
 
-    import imucal.readers
+    import imucal.io.readers
 
     def panic(path):
         raise PanicException("called `Option::unwrap()` on a `None` value\nat src/lib.rs")
 
-    monkeypatch.setattr(imucal.readers, "_read_parquet", panic)
+    monkeypatch.setattr(imucal.io.readers, "_read_parquet", panic)
     path = _corrupt(b"PAR1")(tmp_path / "panic.parquet")
     with pytest.raises(ImucalError, match=r"panic.parquet: cannot read the file: PanicException: "
                                           r"called `Option::unwrap\(\)` on a `None` value$"):

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import imucal
-from imucal.accel import calibrate_accelerometer
 from imucal.models import acc_theta, gyro_theta
+from imucal.stages.accel import calibrate_accelerometer
 from imucal.synth import make_session, thesis_experiment
 
 SEEDS = range(100, 106)
@@ -102,7 +102,7 @@ def test_gyroscope_in_deg_s(tmp_path, via_file):
     session, truth = make_session(poses=30, seed=5, acc_unit="m/s^2", gyro_unit="deg/s")
     assert session.gyro_unit == "rad/s" and np.abs(session.gyro).max() < 20
     if via_file:
-        from imucal.export import write_session_mat
+        from imucal.io.export import write_session_mat
 
         write_session_mat(tmp_path / "deg.mat", session, gyro_unit="deg/s")
         session = imucal.load_session(tmp_path / "deg.mat")

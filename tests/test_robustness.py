@@ -90,7 +90,7 @@ def test_byte_identical_calibration_files(tmp_path):
 
 WRITER = """
 import sys, numpy as np
-from imucal.atomic import write_text_atomic
+from imucal.io.atomic import write_text_atomic
 i = 0
 while True:
     i += 1

@@ -6,9 +6,9 @@ import dataclasses
 import numpy as np
 
 import imucal
-from imucal.gyro import calibrate_gyroscope
 from imucal.models import gyro_theta
-from imucal.saturation import saturated_mask
+from imucal.stages.gyro import calibrate_gyroscope
+from imucal.stages.saturation import saturated_mask
 from imucal.synth import make_session
 
 

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imucal import text_table
 from imucal.errors import ImucalError
-from imucal.file_contents import Table
+from imucal.io import text_table
+from imucal.io.file_contents import Table
 
 # How loggers and savetxt write numbers; the repr-like ones round-trip a float exactly.
 EXACT_FORMATS = ["repr", "%.17g", "%.17e"]

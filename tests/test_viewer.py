@@ -16,12 +16,13 @@ import numpy as np
 import pytest
 
 import imucal
+from imucal.cli import view_main as main
 from imucal.models import acc_theta, gyro_theta
 from imucal.session import Session
 from imucal.synth import make_session
 from viewer import paths as P
 from viewer import readback as rb
-from viewer.app import is_rrd, main, view, web_command, web_url
+from viewer.app import is_rrd, view, web_command, web_url
 from viewer.decimate import envelope
 from viewer.recording import DECIMATE_ABOVE, ENVELOPE_ROWS, save_recording, summary_markdown
 

@@ -252,7 +252,7 @@ class DevTools:
 @pytest.mark.skipif(not RERUN.exists(), reason="the rerun executable is not in the venv")
 def test_web_viewer_renders_the_recording_in_chromium(sample_rrd, tmp_path):
     web_port = free_port()
-    server = _start([sys.executable, "-c", "from viewer.app import main; main()",
+    server = _start([sys.executable, "-c", "from imucal.cli import view_main; view_main()",
                      str(sample_rrd), "--web", "--port", str(web_port)],
                     env=_private_env(tmp_path), stdout=subprocess.PIPE,
                     stderr=open(tmp_path / "server.log", "w"), text=True)  # noqa: SIM115

@@ -29,11 +29,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import quote
 
-from imucal.atomic import atomic_path, check_output_path
 from imucal.errors import ImucalError
+from imucal.io.atomic import atomic_path, check_output_path
 
 if TYPE_CHECKING:
-    from imucal.pipeline import Result
+    from imucal.result import Result
 
 RRD_MAGIC = b"RRF"  # every .rrd starts with RRF0, RRF1 or RRF2
 
@@ -191,15 +191,3 @@ def show(target: str, *, save: str | None = None, web: bool = False, port: int =
             print(f"web viewer: {web_url(port, grpc)}  (Ctrl-C to stop)", flush=True)
             return _run(web_command(rerun, shown, port, grpc))
         return _run([rerun, str(shown)])
-
-
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``imucal-view`` script: ``imucal view`` under its own name, so both
-    take the same options (two-file sessions, units, every setting) and report errors alike."""
-    from imucal.cli import main as cli_main
-
-    sys.exit(cli_main(argv, command="view", prog="imucal-view"))
-
-
-if __name__ == "__main__":
-    main()

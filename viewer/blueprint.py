@@ -31,7 +31,7 @@ import rerun.blueprint as rrb
 from . import paths as P
 
 if TYPE_CHECKING:
-    from imucal.pipeline import Result
+    from imucal.result import Result
 
 TAB_NAMES = ("Overview", "Signals", "Gravity", "L-curve", "Optimiser", "Summary")
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal.detect import runs_of_true
+from imucal.numerics.windows import runs_of_true
 
 
 def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, np.ndarray]:

@@ -114,21 +114,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 import rerun as rr
 
-from imucal.atomic import atomic_path, check_output_path
-from imucal.models import (
-    ACC_PARAM_NAMES,
-    GYRO_PARAM_NAMES,
-    acc_theta,
-    gyro_theta,
-)
+from imucal.io.atomic import atomic_path, check_output_path
+from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, acc_theta, gyro_theta
 
 from . import paths as P
 from .decimate import detail_envelope, envelope
 
 if TYPE_CHECKING:
-    from imucal.accel import AccFit, LCurve
-    from imucal.gyro import GyroFit
-    from imucal.pipeline import Result
+    from imucal.result import Result
+    from imucal.stages.accel import AccFit, LCurve
+    from imucal.stages.gyro import GyroFit
 
 CHUNK_ROWS = 100_000
 DECIMATE_ABOVE = 200_000

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ImucalError
-from .models import SensorModel
-from .session import Session
+from imucal.errors import ImucalError
+from imucal.models import SensorModel
+from imucal.session import Session
 
 
 @dataclass(frozen=True)

@@ -6,28 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .detect import segment_sums
-from .errors import ImucalError
-from .lcurve import lcurve_corner
-from .lm import FactoredCov, FitReport, fit_tikhonov
-from .models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T
+from imucal.errors import ImucalError
+from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T
+from imucal.numerics.lcurve import lcurve_corner
+from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov
+from imucal.numerics.windows import segment_sums
+from imucal.settings import AccSettings, Settings
 
-DEFAULT_LAMBDAS = np.logspace(-8, 3, 34)  # three points a decade
 TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
-
-
-@dataclass(frozen=True)
-class AccSettings:
-    """``lam`` is ``"auto"`` (L-curve corner) or a fixed value, 0 included. ``points`` is how
-    static samples become fit points: ``"thesis"`` (99 evenly spread samples per block averaged
-    in groups of 10), ``"chunks"`` (every sample, averaged in 10 consecutive chunks) or
-    ``"mean"`` (one point per block)."""
-
-    lam: float | str = "auto"
-    lambdas: tuple[float, ...] = tuple(DEFAULT_LAMBDAS)
-    points: str = "chunks"
-    n_select: int = 99
-    n_group: int = 10
 
 
 @dataclass(frozen=True)
@@ -239,7 +225,7 @@ def make_nominal(pts: np.ndarray, acc_unit: str, g_in: float) -> Nominal:
 
 
 def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: str, g_in: float,
-                            g_out: float, settings: AccSettings = AccSettings(),
+                            g_out: float, settings: AccSettings = Settings().acc,
                             nominal: Nominal | None = None) -> AccFit:
     """Fit M2 to the still blocks of one segment by M3, lambda from the L-curve or fixed.
 
@@ -354,8 +340,8 @@ def block_mean_cov(acc: np.ndarray, blocks: np.ndarray, fit: AccFit) -> Factored
     directions that carry both).
 
     Returned factored (``S cov S'`` plus 3 x 3 noise blocks on the diagonal, see
-    :class:`~imucal.lm.FactoredCov`): the dense matrix grows with the square of the number of
-    blocks (``np.asarray`` gives it)."""
+    :class:`~imucal.numerics.least_squares.FactoredCov`): the dense matrix grows with the
+    square of the number of blocks (``np.asarray`` gives it)."""
     B = len(blocks)
     n = (blocks[:, 1] - blocks[:, 0]).astype(float)
     xc = acc - acc[0]

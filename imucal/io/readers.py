@@ -2,7 +2,7 @@
 
 The format is never taken from the extension (the imu_tk example ``xsens_acc.mat`` is plain
 text): MATLAB v5 ``.mat``, MATLAB v7.3 / HDF5, Parquet, and otherwise text
-(:mod:`imucal.text_table`). Whatever a parsing library raises becomes one
+(:mod:`imucal.io.text_table`). Whatever a parsing library raises becomes one
 :class:`~imucal.errors.ImucalError` line naming the file.
 """
 
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ImucalError
-from .file_contents import Table, Variables
-from .text_table import read_text, series_to_float
+from imucal.errors import ImucalError
+from imucal.io.file_contents import Table, Variables
+from imucal.io.text_table import read_text, series_to_float
 
 
 def display_name(path: Path) -> str:
@@ -95,7 +95,7 @@ def _as_matrix(value: object) -> np.ndarray | None:
 def _read_mat5(path: Path) -> Variables:
     from scipy.io import loadmat
 
-    from .mat5_check import CorruptMat, check_mat5
+    from imucal.io.mat5_check import CorruptMat, check_mat5
 
     data = path.read_bytes()
     inflated = io.BytesIO()

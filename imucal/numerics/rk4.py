@@ -34,7 +34,7 @@ BUCKET_OVERHEAD_STEPS = 10000
 BUCKET_RATIO = 0.8
 
 
-def _mul(p: Quat, q: Quat) -> Quat:
+def mul(p: Quat, q: Quat) -> Quat:
     """Hamilton product ``p (x) q`` of component arrays (fresh outputs, in-place accumulation)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
@@ -161,10 +161,10 @@ def product_rows(P: Quat) -> Quat:
     while P[0].shape[0] > 1 and P[0].size > SMALL:
         n = P[0].shape[0]
         m = n - (n % 2)
-        R = _mul(tuple(c[0:m:2] for c in P), tuple(c[1:m:2] for c in P))
+        R = mul(tuple(c[0:m:2] for c in P), tuple(c[1:m:2] for c in P))
         if n % 2:
             k = m // 2
-            last = _mul(tuple(c[k - 1:k] for c in R), tuple(c[n - 1:n] for c in P))
+            last = mul(tuple(c[k - 1:k] for c in R), tuple(c[n - 1:n] for c in P))
             for c, v in zip(R, last):
                 c[k - 1:k] = v
         P = R
@@ -193,13 +193,13 @@ def prefix_rows(P: Quat) -> Quat:
     if n == 1:
         return tuple(c.copy() for c in P)
     m = n // 2
-    pairs = prefix_rows(_mul(tuple(c[0:2 * m:2] for c in P), tuple(c[1:2 * m:2] for c in P)))
+    pairs = prefix_rows(mul(tuple(c[0:2 * m:2] for c in P), tuple(c[1:2 * m:2] for c in P)))
     out = tuple(np.empty_like(c) for c in P)
     for o, c, s in zip(out, P, pairs):
         o[1:2 * m:2] = s  # row 2j + 1: the prefix of pairs 0..j
         o[0] = c[0]
     if n > 2:
-        even = _mul(tuple(s[0:(n - 1) // 2] for s in pairs), tuple(c[2:n:2] for c in P))
+        even = mul(tuple(s[0:(n - 1) // 2] for s in pairs), tuple(c[2:n:2] for c in P))
         for o, e in zip(out, even):
             o[2:n:2] = e  # row 2j: the prefix of pairs 0..j-1, times row 2j
     return out
@@ -308,7 +308,7 @@ class StepLayout:
         k = 1 if models is None else len(models)
         out = np.empty((k, self.n, 4))
         out[:] = (1.0, 0.0, 0.0, 0.0)
-        cal = None if models is None else _calibrator(models)
+        cal = None if models is None else calibrator(models)
         for (idx, _, _, dt, dt2), w in zip(self.buckets, samples):
             L, kb = dt.shape
             # Slabs depend on the layout only, not on k: the reduction tree, and so the
@@ -323,7 +323,7 @@ class StepLayout:
                 a = tuple(x[:-1] for x in c)
                 b = tuple(x[1:] for x in c)
                 q = product_rows(rk4_raw(a, b, dt[r0:r1, None, :], dt2[r0:r1, None, :]))
-                acc = q if acc is None else _mul(acc, q)
+                acc = q if acc is None else mul(acc, q)
             out[:, idx] = np.stack(np.broadcast_arrays(*acc), axis=-1)
         return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
@@ -346,7 +346,7 @@ class StepLayout:
         100 Hz and fast turns, well below what the fit needs of a Jacobian (the residuals
         themselves are always evaluated exactly).
         """
-        cal = _calibrator([(M, b)])
+        cal = calibrator([(M, b)])
         b = np.asarray(b, float).tolist()
         q_out = np.empty((self.n, 4))
         q_out[:] = (1.0, 0.0, 0.0, 0.0)
@@ -386,7 +386,7 @@ class StepLayout:
                     Rc = _matrix_rows(tuple(x[None] for x in carry), np.empty((1, 9, kb)))
                     Rc = Rc[0].T.reshape(kb, 3, 3)
                     part = np.matmul(Rc, part.reshape(kb, 3, 12)).reshape(kb, 9, 4)
-                    carry = _mul(carry, tuple(x[-1] for x in Q))
+                    carry = mul(carry, tuple(x[-1] for x in Q))
                 S += part
             if carry is not None:
                 q_out[idx] = np.stack(carry, axis=-1)
@@ -428,7 +428,7 @@ def _matrix_rows(q: Quat, out: np.ndarray) -> np.ndarray:
     return out
 
 
-def _calibrator(models: list[tuple]):
+def calibrator(models: list[tuple]):
     """M4 on component arrays for k models at once: ``w_i = sum_j M_ij (w_raw_j - b_j)``.
 
     Raw slabs are (rows, 1, K); the result (rows, k, K). Per element the arithmetic is the

@@ -7,12 +7,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .calibration import CalibratedSignals
-from .detect import Detection, block_means, segment_sums
+from imucal.numerics.windows import block_means, segment_sums
+from imucal.stages.apply import CalibratedSignals
+from imucal.stages.detect import Detection
 
 if TYPE_CHECKING:
-    from .pipeline import Segment
-    from .session import Session
+    from imucal.session import Session
+    from imucal.stages.gyro import GyroFit
 
 
 @dataclass(frozen=True)
@@ -31,24 +32,8 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 
 
-def distinct_orientations(vectors: np.ndarray, min_angle_deg: float = 15.0) -> int:
-    """How many of the directions differ from all kept ones by at least ``min_angle_deg``.
-
-    A greedy count over blocks (tens to hundreds), not over samples.
-    """
-    if len(vectors) == 0:
-        return 0
-    u = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
-    cos_min = np.cos(np.radians(min_angle_deg))
-    kept: list[np.ndarray] = []
-    for v in u:
-        if not kept or np.max(np.array(kept) @ v) < cos_min:
-            kept.append(v)
-    return len(kept)
-
-
 def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
-                    segments: list[Segment], g_in: float, g_out: float) -> Quality:
+                    gyro_fits: list[GyroFit], g_in: float, g_out: float) -> Quality:
     notes = []
     after_blocks = (np.linalg.norm(block_means(cal.acc, det.blocks), axis=1) / g_out - 1) * 1e3
     after_samples = _block_samples_norm_rms(cal.acc, g_out, det.blocks)
@@ -61,7 +46,6 @@ def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
         before_samples = _block_samples_norm_rms(session.acc, g_in, det.blocks)
 
     angle = None
-    gyro_fits = [s.gyro for s in segments if s.gyro is not None]
     if gyro_fits:
         # Transitions through saturated samples are predicted wrong by any calibration:
         # they are left out of the fit and of its figure (and shown in the recording).

@@ -7,26 +7,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .detect import segment_sums
-from .errors import ImucalError
-from .integrate import SLAB, StepLayout, _calibrator, _mul, product_rows
-from .lm import FactoredCov, FitReport, fit_tikhonov, sandwich_cov, trace_of
-from .models import GYRO_THETA0, SensorModel, gyro_T
-from .quaternion import rotate_inverse, to_matrix
-from .saturation import blocks_with
-
-
-@dataclass(frozen=True)
-class GyroSettings:
-    """``bias``: ``"all"`` (every static block of the segment) or ``"first"`` (the thesis: the
-    first block). ``optimise_bias`` adds the bias to the fit, its prior the static estimate.
-    ``nominal_scale``: rad/s per raw unit for a gyroscope in counts (datasheet sensitivity);
-    without it the scale is found from the data and "before" figures are not reported."""
-
-    lam: float = 1e-4
-    bias: str = "all"
-    optimise_bias: bool = False
-    nominal_scale: float | None = None
+from imucal.errors import ImucalError
+from imucal.models import GYRO_THETA0, SensorModel, gyro_T
+from imucal.numerics.least_squares import (
+    FactoredCov,
+    FitReport,
+    fit_tikhonov,
+    sandwich_cov,
+    trace_of,
+)
+from imucal.numerics.quaternion import rotate_inverse, to_matrix
+from imucal.numerics.rk4 import SLAB, StepLayout, calibrator, mul, product_rows
+from imucal.numerics.windows import segment_sums
+from imucal.settings import GyroSettings, Settings
+from imucal.stages.saturation import blocks_with
 
 
 def transition_samples(t: np.ndarray, block_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -79,7 +73,7 @@ class Transitions:
 
         A parameter moves the calibrated rate by ``dw = E (w_raw - b) + e`` with ``E = dM``
         and ``e = -M db``; the end orientation then turns by ``dphi = R^T S [E | e]``
-        (:meth:`~imucal.integrate.StepLayout.sensitivity`) and the predicted direction
+        (:meth:`~imucal.numerics.rk4.StepLayout.sensitivity`) and the predicted direction
         ``v = R^T u_prev`` by ``dphi x v``. ``M`` and ``b`` are bilinear in the parameters, so
         central differences of that small map are exact to rounding.
         """
@@ -105,7 +99,7 @@ class Transitions:
     def max_step_angle(self, model: SensorModel) -> float:
         """Largest angle turned in one step, ``|w(t_n)| dt_n`` with the calibrated rate at the
         step's start (0 without steps)."""
-        cal = _calibrator([(model.matrix, model.b)])
+        cal = calibrator([(model.matrix, model.b)])
         out = 0.0
         for (_, _, _, dt, _), w in zip(self.layout.buckets, self.rates):
             if dt.size:
@@ -118,7 +112,7 @@ class Transitions:
         """A function of ``s`` giving :meth:`rotations` under the isotropic model ``w = s (w_raw -
         bias)`` (the 1-D scale search runs it dozens of times).
 
-        With ``w = s d`` the closed-form RK4 step (:func:`~imucal.integrate.rk4_raw`) is a
+        With ``w = s d`` the closed-form RK4 step (:func:`~imucal.numerics.rk4.rk4_raw`) is a
         polynomial in ``s`` whose coefficients depend on the data only: with ``e = s^2 A``,
         ``P = (1 + e (s^2 B - 1/2), s h/4 (1 - e/6) (d0 + d1) + s^2 h^2/24 (1 - e/4) (d0 x d1))``,
         ``A = h^2 |d0 + d1|^2 / 16`` and ``B = h^2 (d0 . d1) / 96``, all precomputed here, so an
@@ -166,7 +160,7 @@ class Transitions:
                         v += cd[i][sl] * be
                         pv.append(v)
                     q = product_rows((pw, *pv))
-                    acc = q if acc is None else _mul(acc, q)
+                    acc = q if acc is None else mul(acc, q)
                 out[idx] = np.stack(acc, axis=-1)
             return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
@@ -366,7 +360,7 @@ def fminbound(func, x1: float, x2: float, xatol: float = 1e-5, maxfun: int = 500
 
 def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,
                         gravity: np.ndarray, gyro_unit: str,
-                        settings: GyroSettings = GyroSettings(),
+                        settings: GyroSettings = Settings().gyro,
                         gravity_cov: np.ndarray | FactoredCov | None = None,
                         saturated: np.ndarray | None = None) -> GyroFit:
     """Fit M4 so that integrating the calibrated rate (M5) turns each block's gravity

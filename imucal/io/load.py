@@ -1,6 +1,6 @@
 """Read a recording into a :class:`~imucal.session.Session` (method.md §0).
 
-:mod:`imucal.readers` recognises the format and reads the file into a table of columns or named
+:mod:`imucal.io.readers` recognises the format and reads the file into a table of columns or named
 variables; this module decides which of them hold time, the accelerometer and the gyroscope
 (by name, by position or as the user says), settles the time base and the units, and bridges
 short runs of missing samples.
@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from imucal.errors import ImucalError, plural
-from imucal.file_contents import Table, Variables
-from imucal.readers import display_name, read_file
+from imucal.io.file_contents import Table, Variables
+from imucal.io.readers import display_name, read_file
 from imucal.session import Session
 
 __all__ = ["load_session"]

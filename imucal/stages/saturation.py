@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .detect import runs_of_true
+from imucal.numerics.windows import runs_of_true
 
 
 def saturated_mask(x: np.ndarray, min_run: int = 5) -> np.ndarray:
     """Samples where an axis sits at its extreme value for ``min_run`` or more samples in a row.
 
     Noise makes an unclipped signal touch its own maximum once or twice; a clipped one sits at
-    it. Runs come from :func:`imucal.detect.runs_of_true`.
+    it. Runs come from :func:`imucal.numerics.windows.runs_of_true`.
     """
     out = np.zeros(len(x), dtype=bool)
     for axis in range(x.shape[1]):

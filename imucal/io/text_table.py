@@ -1,4 +1,4 @@
-"""Delimited text into a :class:`~imucal.file_contents.Table` of float columns.
+"""Delimited text into a :class:`~imucal.io.file_contents.Table` of float columns.
 
 CSV, TSV, ``;``- or whitespace-separated, with or without a header (a ``# t ax ay az`` comment
 above headerless data counts as one), European decimal commas. A plain numeric table is read by
@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import ImucalError, plural
-from .file_contents import Table
+from imucal.errors import ImucalError, plural
+from imucal.io.file_contents import Table
 
 if TYPE_CHECKING:
     import polars as pl

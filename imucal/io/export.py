@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_atomic, write_text_atomic
-from .calibration import CalibratedSignals
-from .errors import ImucalError
-from .session import Session
-from .synth import Truth
+from imucal.errors import ImucalError
+from imucal.io.atomic import write_atomic, write_text_atomic
+from imucal.session import Session
+from imucal.stages.apply import CalibratedSignals
+from imucal.synth import Truth
 
 FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".mat": "mat"}
 

@@ -14,13 +14,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .atomic import write_text_atomic
-from .calibration import Calibration, SegmentModels
-from .errors import ImucalError
-from .models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
+from imucal.errors import ImucalError
+from imucal.io.atomic import write_text_atomic
+from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
+from imucal.stages.apply import Calibration, SegmentModels
 
 if TYPE_CHECKING:
-    from .pipeline import Result
+    from imucal.result import Result
 
 FORMAT = "imucal-calibration"
 FORMAT_VERSION = 1

@@ -23,17 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .accel import jacobian, residuals
-from .lm import fit_tikhonov
-from .models import ACC_THETA0
-from .quality import distinct_orientations
-
-
-@dataclass(frozen=True)
-class GroupSettings:
-    single_segment: bool = False
-    delta: float = 0.01  # thesis code: 0.01 g (its text: 0.02 g), here relative to |g|
-    min_blocks: int = 12
+from imucal.models import ACC_THETA0
+from imucal.numerics.directions import distinct_orientations
+from imucal.numerics.least_squares import fit_tikhonov
+from imucal.settings import GroupSettings, Settings
+from imucal.stages.accel import jacobian, residuals
 
 
 @dataclass(frozen=True)
@@ -53,7 +47,7 @@ class Grouping:
 
 
 def group_blocks(means_nominal: np.ndarray, theta_start: np.ndarray, lam: float,
-                 settings: GroupSettings = GroupSettings()) -> Grouping:
+                 settings: GroupSettings = Settings().group) -> Grouping:
     """Segments of consecutive blocks calibrated on their own (see the module docstring).
 
     ``means_nominal`` (B, 3) are the blocks' mean accelerations in the fit's nominal frame and

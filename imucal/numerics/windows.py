@@ -1,0 +1,161 @@
+"""Sums, means and variances over windows and index ranges of a signal, in linear time.
+
+Plain array numerics: the static detector (method.md §1) and every stage that averages over
+still blocks use them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def rolling_variance(x: np.ndarray, window: int) -> np.ndarray:
+    """Variance of each column over a centred window, O(N) via running means.
+
+    The data are centred on their overall mean first and computed in float64, so E[x^2] - E[x]^2
+    does not lose the small variance of a still sensor to cancellation (method.md §1). Windows
+    at the ends are mirrored, so the first and last samples get a statistic too.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    n, k = x.shape
+    var = np.empty((k, n))
+    y = np.empty((2, n))
+    m = np.empty((2, n))
+    for j in range(k):  # one axis at a time, reusing the buffers: few large allocations
+        y[0] = x[:, j]
+        y[0] -= y[0].mean()
+        np.multiply(y[0], y[0], out=y[1])
+        moving_sum(y, window, out=m)
+        m *= 1.0 / window
+        np.multiply(m[0], m[0], out=m[0])
+        np.subtract(m[1], m[0], out=var[j])
+    # Unbiased like MATLAB's var; clip the tiny negatives that rounding can leave.
+    np.maximum(var, 0.0, out=var)
+    var *= window / max(window - 1, 1)
+    return var.T
+
+
+def median_inplace(a: np.ndarray) -> float:
+    """``np.median(a)`` for a 1-D float array that may be reordered (no copy)."""
+    n = len(a)
+    if n == 0:
+        return float("nan")
+    h = n // 2
+    if n % 2:
+        a.partition(h)
+        return float(a[h])
+    a.partition([h - 1, h])
+    return float(np.mean(a[h - 1:h + 1]))
+
+
+def moving_sum(y: np.ndarray, window: int, chunk: int = 16384, group: int = 8,
+               out: np.ndarray | None = None) -> np.ndarray:
+    """Sum of each row of ``y`` (k, N) over a centred window (``window // 2`` samples before,
+    the rest after), the ends mirrored about the first and last sample (scipy.ndimage's
+    "mirror"), in O(N) without scipy.
+
+    Windowed sums from one running sum, ``S[i] = C[i + w] - C[i]``, lose the small sum of a
+    still window to the rounding of a large total on long recordings. Here the running sums
+    restart every ``chunk`` samples, so every difference is of sums over at most one chunk,
+    and a window that crosses into the next chunk adds the total of its own. The output is
+    produced ``group`` chunks at a time, so the temporaries stay small.
+    """
+    y = np.asarray(y, dtype=np.float64)
+    k, n = y.shape
+    w = int(window)
+    left = w // 2
+    if n <= max(left, w - 1 - left):  # mirroring needs more samples than half a window
+        right = w - 1 - left
+        padded = np.pad(y, ((0, 0), (left, right)), mode="reflect") if n > 1 else np.repeat(
+            y, w, axis=1)
+        c = np.concatenate([np.zeros((k, 1)), np.cumsum(padded, axis=1)], axis=1)
+        if out is None:
+            return c[:, w:w + n] - c[:, :n]
+        return np.subtract(c[:, w:w + n], c[:, :n], out=out)
+    b = max(chunk, 2 * w)
+    if out is None:
+        out = np.empty((k, n))
+    step = group * b
+    for o0 in range(0, n, step):
+        o1 = min(n, o0 + step)
+        # output i sums the mirrored signal over [i - left, i - left + w)
+        a, c = o0 - left, o1 - left + w - 1
+        if a >= 0 and c <= n:
+            z = y[:, a:c]
+        else:
+            idx = np.arange(a, c)
+            idx = np.where(idx < 0, -idx, idx)
+            idx = np.where(idx > n - 1, 2 * (n - 1) - idx, idx)
+            z = y[:, idx]
+        out[:, o0:o1] = chunked_window_sums(z, w, o1 - o0, b)
+    return out
+
+
+def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int) -> np.ndarray:
+    """``S[:, i] = z[:, i:i + w].sum(axis=1)`` for ``i < m``, by running sums restarted every
+    ``b`` samples (see :func:`moving_sum`)."""
+    k, length = z.shape
+    b = max(w, min(b, length + 1))  # short signals: one chunk
+    # Chunks cover at least length + 1 samples, so a window that runs past the last chunk
+    # ends past the signal and is not an output.
+    nch = -(-(length + 1) // b)
+    Y = np.empty((k, nch * b))
+    Y[:, :length] = z
+    Y[:, length:] = 0.0
+    Y = Y.reshape(k, nch, b)
+    E = np.cumsum(Y, axis=2)
+    T = E[:, :, -1].copy()  # chunk totals
+    E -= Y  # exclusive running sums within each chunk
+    S = Y  # no longer needed: the sums go in its place
+    np.subtract(E[:, :, w:], E[:, :, :b - w], out=S[:, :, :b - w])
+    np.subtract(E[:, 1:, :w], E[:, :-1, b - w:], out=S[:, :-1, b - w:])
+    S[:, :-1, b - w:] += T[:, :-1, None]
+    return S.reshape(k, -1)[:, :m]
+
+
+def runs_of_true(mask: np.ndarray) -> np.ndarray:
+    """[start, end) index pairs of the runs of True in a boolean array, vectorised."""
+    padded = np.concatenate(([False], mask, [False])).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return edges.reshape(-1, 2)
+
+
+def block_means(x: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """Mean of x over each [start, end) block, in one pass (no loop over blocks)."""
+    if len(blocks) == 0:
+        return np.zeros((0, x.shape[1]))
+    sums = segment_sums(x, blocks[:, 0], blocks[:, 1])
+    return sums / np.maximum(blocks[:, 1] - blocks[:, 0], 1)[:, None]
+
+
+def segment_sums(x: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Sums of the rows of ``x`` (N, k) over the ranges ``[starts[i], ends[i])``, 0 for an
+    empty range.
+
+    For sorted, non-overlapping ranges (static blocks, or the chunks of each) this is one
+    ``np.add.reduceat`` pass with no temporary the size of ``x``; each sum is accumulated
+    over its own range only, so it keeps full precision on long recordings (a difference of
+    two cumulative sums loses the digits of the running total). Other ranges fall back to
+    cumulative sums.
+    """
+    x = np.asarray(x)
+    starts = np.asarray(starts, np.int64)
+    ends = np.asarray(ends, np.int64)
+    n = len(x)
+    out = np.zeros((len(starts),) + x.shape[1:])
+    keep = ends > starts
+    s, e = starts[keep], ends[keep]
+    if len(s) == 0:
+        return out
+    if s[0] < 0 or e[-1] > n or np.any(e[:-1] > s[1:]):
+        xc = x - x[0]
+        cs = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(xc, axis=0)])
+        out[keep] = cs[e] - cs[s] + (e - s).reshape((-1,) + (1,) * (x.ndim - 1)) * x[0]
+        return out
+    idx = np.empty(2 * len(s), np.int64)
+    idx[0::2] = s
+    idx[1::2] = e
+    if idx[-1] == n:  # the last range runs to the end: reduceat's last segment does
+        idx = idx[:-1]
+    out[keep] = np.add.reduceat(x, idx, axis=0)[0::2]
+    return out
