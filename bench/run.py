@@ -522,17 +522,15 @@ def jacobian_methods(repeat: int, minutes: float) -> dict:
     import numpy as np
     from scipy.optimize._numdiff import approx_derivative
 
-    from imucal.numerics.least_squares import _VectorFunction, fit_tikhonov
+    from imucal.numerics.least_squares import fit_tikhonov
 
     p = gyro_problem(minutes)
     res, theta = p["res"], p["theta"]
     theta0 = p["theta0"]
     lam = p["result"].settings.gyro_lambda
 
-    def _fd2(th):  # the product's own forward differences (scipy's "2-point" rule)
-        vf = _VectorFunction.__new__(_VectorFunction)
-        vf._fun, vf._jac, vf.x, vf.f = res, None, np.asarray(th, float), res(th)
-        return vf._jacobian()
+    def _fd2(th):  # forward differences, scipy's "2-point" rule (fit_tikhonov's with jac=None)
+        return approx_derivative(res, np.asarray(th, float), method="2-point")
 
     def _variational(th):  # the product's own (Transitions.jacobian)
         return p["tr"].jacobian(p["model_of"], np.asarray(th, float), p["u_prev"])
