@@ -471,7 +471,7 @@ def complex_step_jacobian(p: dict, theta, h: float = 1e-20):
     One complex evaluation per parameter, each about four real ones."""
     import numpy as np
 
-    from imucal.numerics.rk4 import SLAB, _mul, product_rows, rk4_raw
+    from imucal.numerics.rk4 import SLAB, mul, product_rows, rk4_raw
 
     tr, u_prev, model_of = p["tr"], p["u_prev"], p["model_of"]
     layout = tr.layout
@@ -497,7 +497,7 @@ def complex_step_jacobian(p: dict, theta, h: float = 1e-20):
                 c = cal(tuple(x[r0:r1 + 1] for x in w))
                 qq = product_rows(rk4_raw(tuple(x[:-1] for x in c), tuple(x[1:] for x in c),
                                           dt[r0:r1], dt2[r0:r1]))
-                acc = qq if acc is None else _mul(acc, qq)
+                acc = qq if acc is None else mul(acc, qq)
             q[idx] = np.stack(acc, axis=-1)
         q = q / np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
         w_, x_, y_, z_ = q.T
