@@ -23,6 +23,7 @@ import numpy as np
 from imucal.errors import ImucalError
 from imucal.io.column_names import ROLES
 from imucal.io.file_contents import Table, Variables
+from imucal.io.file_facts import FileFacts, read_facts
 from imucal.io.mat_layout import from_variables
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.readers import display_name, read_file
@@ -122,6 +123,7 @@ def load_session(
         source=source,
         sha256=_sha256(paths),
         notes=tuple(dict.fromkeys(opts.notes)),  # a shared time column speaks once
+        init_still_s=opts.init_still_s,
     )
 
 
@@ -196,6 +198,27 @@ def _extract(content: Table | Variables, sensors: tuple[str, ...],
              opts: LoadOptions) -> dict[str, Part]:
     if isinstance(content, Variables):
         return from_variables(content, sensors, opts)
+    opts.notes.extend(content.notes)
     if content.names is None:
-        return from_positions(content, sensors, opts)
-    return from_names(content, sensors, opts)
+        parts = from_positions(content, sensors, opts)
+    else:
+        parts = from_names(content, sensors, opts)
+    if content.preamble:
+        _take_facts(read_facts(content.preamble), content.source, parts, opts)
+    return parts
+
+
+def _take_facts(facts: FileFacts, source: str, parts: dict[str, Part],
+                opts: LoadOptions) -> None:
+    """Hand what a file's preamble states to its parts (a rate, a time unit) and to the
+    session (an initial still period), and say what was read."""
+    said = facts.summary()
+    if said:
+        opts.notes.append(f"{source}: its preamble states {said}")
+    for part in parts.values():
+        part.stated_rate = facts.rate_for(part.sensor)
+        if facts.time_unit is not None and part.time_unit is None:
+            part.time_unit = facts.time_unit[0]
+            part.time_unit_from = f"as the file states ({facts.time_unit[1]})"
+    if facts.init_still_s is not None and opts.init_still_s is None:
+        opts.init_still_s = facts.init_still_s[0]

@@ -21,10 +21,11 @@ class Part:
     time: np.ndarray | None = None  # in the file's units
     time_label: str = ""
     time_unit: str | None = None  # named by the file (e.g. a column "time_ms")
+    time_unit_from: str = "as its name says"  # where time_unit comes from, for the notes
     time_is_datetime: bool = False  # converted from date-times: seconds whatever time_unit says
     unit_hint: str | None = None
     counter_label: str | None = None  # a sample-counter column, to explain a missing rate
-    looks_like_counter: bool = False  # positional time column holding 0, 1, 2, ...
+    stated_rate: tuple[float, str] | None = None  # Hz the file's preamble states, and where
 
 
 @dataclass
@@ -33,6 +34,7 @@ class LoadOptions:
     time_unit: str
     columns: dict[str, str | int] | None
     notes: list[str] = field(default_factory=list)
+    init_still_s: float | None = None  # the initial still period a file states
 
 
 def columns_for(opts: LoadOptions, sensors: tuple[str, ...], source: str

@@ -49,17 +49,7 @@ def from_positions(table: Table, sensors: tuple[str, ...], opts: LoadOptions) ->
     mapping = {"t": 0} if offset else {}
     roles = AXES[sensors[0]] + (AXES["gyro"] if n >= 6 else ())
     mapping.update({role: offset + i for i, role in enumerate(roles)})
-    parts = _parts_from_mapping(table, mapping, sensors, opts, counter=None)
-    if offset:
-        for part in parts.values():
-            part.looks_like_counter = _is_counter(part.time)
-    return parts
-
-
-def _is_counter(values: np.ndarray | None) -> bool:
-    if values is None or values.size < 2 or not np.isfinite(values).all():
-        return False
-    return bool(np.all(np.diff(values) == 1) and float(values[0]).is_integer())
+    return _parts_from_mapping(table, mapping, sensors, opts, counter=None)
 
 
 def from_names(table: Table, sensors: tuple[str, ...], opts: LoadOptions) -> dict[str, Part]:

@@ -13,6 +13,7 @@ from imucal.io.units import TIME_UNITS
 MAX_RATE_HZ = 100_000.0
 MAX_BRIDGED_RUN = 5  # longest run of non-finite samples that is interpolated instead of refused
 MAX_BRIDGED_FRACTION = 0.05  # and at most this share of a recording may be interpolated
+RATE_TOLERANCE = 0.01  # a stated rate further than this from the one used is a note
 
 
 def own_rows(acc: Part, gyro: Part, opts: LoadOptions) -> None:
@@ -39,22 +40,28 @@ def own_rows(acc: Part, gyro: Part, opts: LoadOptions) -> None:
 
 
 def settle_time(part: Part, opts: LoadOptions) -> tuple[np.ndarray, np.ndarray]:
-    """Checked timestamps in seconds (from the file, else the rate); short NaN gaps bridged."""
+    """Checked timestamps in seconds (from the file, else the rate); short NaN gaps bridged.
+
+    The rate is the user's, else the one the file's preamble states; a time column wins over
+    both, and a stated rate it contradicts by more than 1 % is a note."""
     label, source = LABELS[part.sensor], part.source
     values = part.values
     n = len(values)
     if n < 2:
         raise ImucalError(f"{label}: {n} sample(s); at least 2 are needed", source=source,
                           field="samples")
+    rate, rate_from = _rate(part, opts)
     time = part.time
-    if time is not None and part.looks_like_counter and opts.time_unit == "s":
-        # 0, 1, 2, ... in the time position is a sample counter (it would mean 1 Hz).
-        if opts.rate is None:
-            raise ImucalError(f"{part.time_label} looks like a sample counter (0, 1, 2, ...), "
-                              "not time; a sample rate is needed (--rate HZ)", source=source,
-                              field="rate")
-        opts.notes.append(f"{part.time_label} of {source} is a sample counter; timestamps from "
-                          f"the rate {opts.rate:g} Hz")
+    if time is not None and _counts_samples(time, part, opts):
+        # 0, 1, 2, ... read as seconds would be a 1 Hz IMU: it is a sample counter.
+        if rate is None:
+            first = ", ".join(f"{v:g}" for v in time[:3])
+            raise ImucalError(f"{part.time_label} goes up in steps of 1 ({first}, ...): a sample "
+                              "counter, not seconds; give the sample rate with --rate HZ, or "
+                              "--time-unit ms (us, ns) if it counts milliseconds",
+                              source=source, field="rate")
+        opts.notes.append(f"{part.time_label} of {source} counts samples (steps of 1); "
+                          f"timestamps from the rate {rate:g} Hz{rate_from}")
         time = None
     if time is not None:
         unit = _time_unit(part, opts)
@@ -65,8 +72,12 @@ def settle_time(part: Part, opts: LoadOptions) -> tuple[np.ndarray, np.ndarray]:
         if opts.rate is not None:
             opts.notes.append(f"{label} timestamps taken from {part.time_label} of {source}; "
                               "the given rate is not used")
-    elif opts.rate is not None:
-        t = np.arange(n, dtype=np.float64) / opts.rate
+        elif part.stated_rate is not None:
+            _compare_rate(t, part, opts.notes)
+    elif rate is not None:
+        t = np.arange(n, dtype=np.float64) / rate
+        if opts.rate is None:
+            opts.notes.append(f"timestamps from the rate {rate:g} Hz{rate_from}")
     else:
         why = f" ({part.counter_label} is a sample counter, not time)" if part.counter_label else ""
         raise ImucalError(f"{label}: no time column{why}; a sample rate is needed (--rate HZ)",
@@ -76,6 +87,43 @@ def settle_time(part: Part, opts: LoadOptions) -> tuple[np.ndarray, np.ndarray]:
     return values, t
 
 
+def _rate(part: Part, opts: LoadOptions) -> tuple[float | None, str]:
+    """The rate to use where there is no time column, and where it comes from (for notes)."""
+    stated = part.stated_rate
+    if opts.rate is not None:
+        if stated is not None and abs(stated[0] / opts.rate - 1) > RATE_TOLERANCE:
+            opts.notes.append(f"{part.source} states {stated[0]:g} Hz ({stated[1]}) but "
+                              f"--rate {opts.rate:g} was given; using {opts.rate:g} Hz")
+        return opts.rate, ""
+    if stated is not None:
+        return stated[0], f" stated by {part.source}, {stated[1]}"
+    return None, ""
+
+
+def _compare_rate(t: np.ndarray, part: Part, notes: list[str]) -> None:
+    """A rate the preamble states against the time column's (which is used): a note when they
+    disagree by more than 1 %."""
+    assert part.stated_rate is not None
+    stated, where = part.stated_rate
+    with np.errstate(over="ignore", invalid="ignore"):
+        step = np.diff(t[: min(len(t), 100_001)])
+    step = step[np.isfinite(step) & (step > 0)]
+    if not len(step):
+        return
+    measured = 1.0 / float(np.median(step))
+    if abs(measured / stated - 1) > RATE_TOLERANCE:
+        notes.append(f"{part.source} states {stated:g} Hz ({where}) but its {part.time_label} "
+                     f"steps at {measured:.4g} Hz; the time column is used")
+
+
+def _counts_samples(time: np.ndarray, part: Part, opts: LoadOptions) -> bool:
+    """Integers in steps of exactly 1 in a time column that would be read in seconds."""
+    if (part.time_unit is not None or part.time_is_datetime or opts.time_unit != "s"
+            or time.size < 2 or not np.isfinite(time).all()):
+        return False
+    return bool(np.all(np.diff(time) == 1) and float(time[0]).is_integer())
+
+
 def _time_unit(part: Part, opts: LoadOptions) -> str:
     """The user's time_unit, except that a unit named by the file wins over the default "s"."""
     if part.time_is_datetime:
@@ -83,8 +131,8 @@ def _time_unit(part: Part, opts: LoadOptions) -> str:
     if part.time_unit is None or part.time_unit == opts.time_unit:
         return opts.time_unit
     if opts.time_unit == "s":
-        opts.notes.append(f"{part.time_label} of {part.source} read in {part.time_unit}, as its "
-                          "name says")
+        opts.notes.append(f"{part.time_label} of {part.source} read in {part.time_unit}, "
+                          f"{part.time_unit_from}")
         return part.time_unit
     opts.notes.append(f"{part.time_label} of {part.source} looks like {part.time_unit} but "
                       f"time_unit={opts.time_unit} was given; using {opts.time_unit}")
