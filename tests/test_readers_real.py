@@ -206,3 +206,173 @@ def test_cli_synth_shapes_load_and_calibrate(tmp_path):
     proc = subprocess.run([IMUCAL, "synth", str(tmp_path / "x.mat"), "--preamble"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "name OUT.csv" in proc.stderr
+
+
+# --- 3. the column names real loggers write ----------------------------------------------------
+
+G = 9.80665
+# What each kind of column holds, from the accelerometer in g, the gyroscope in rad/s and the
+# time in seconds: (source, scale). "junk" is a column to leave alone.
+_UNITS = {"g": 1.0, "m/s^2": G, "mg": 1000.0, "rad/s": 1.0, "deg/s": np.rad2deg(1.0),
+          "mdps": 1000 * np.rad2deg(1.0)}
+
+
+def _logger_table(spec: list[tuple[str, str]], n: int = 400, t0: float = 0.0
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A table whose columns are described by (role, unit or time scale); returns it with the
+    accelerometer (g), the gyroscope (rad/s) and the time (s) it holds."""
+    acc, gyro = _signals(n)
+    t = t0 + np.arange(n) / 100.0
+    rng = np.random.default_rng(9)
+    cols = []
+    for role, unit in spec:
+        if role == "t":
+            cols.append(t / float(unit))
+        elif role in ("ax", "ay", "az"):
+            cols.append(acc[:, "xyz".index(role[1])] * _UNITS[unit])
+        elif role in ("gx", "gy", "gz"):
+            cols.append(gyro[:, "xyz".index(role[1])] * _UNITS[unit])
+        elif role == "count":
+            cols.append(np.arange(n) + 17.0)
+        else:
+            cols.append(rng.normal(size=n))
+    return np.column_stack(cols), acc, gyro, t
+
+
+LOGGERS = {
+    "Arduino MPU-6050 sketch": (["millis", "AcX", "AcY", "AcZ", "Tmp", "GyX", "GyY", "GyZ"],
+                                [("t", "1e-3"), ("ax", "g"), ("ay", "g"), ("az", "g"),
+                                 ("junk", ""), ("gx", "deg/s"), ("gy", "deg/s"), ("gz", "deg/s")]),
+    "x-io x-IMU3": (["Timestamp (us)", "Gyroscope X (deg/s)", "Gyroscope Y (deg/s)",
+                     "Gyroscope Z (deg/s)", "Accelerometer X (g)", "Accelerometer Y (g)",
+                     "Accelerometer Z (g)"],
+                    [("t", "1e-6"), ("gx", "deg/s"), ("gy", "deg/s"), ("gz", "deg/s"),
+                     ("ax", "g"), ("ay", "g"), ("az", "g")]),
+    "Xsens MT Manager": (["PacketCounter", "SampleTimeFine", "Acc_X", "Acc_Y", "Acc_Z",
+                          "FreeAcc_X", "FreeAcc_Y", "FreeAcc_Z", "Gyr_X", "Gyr_Y", "Gyr_Z"],
+                         [("count", ""), ("t", "1e-4"), ("ax", "m/s^2"), ("ay", "m/s^2"),
+                          ("az", "m/s^2"), ("junk", ""), ("junk", ""), ("junk", ""),
+                          ("gx", "rad/s"), ("gy", "rad/s"), ("gz", "rad/s")]),
+    "ROS rostopic -p": (["%time", "field.header.seq", "field.header.stamp",
+                         "field.orientation.x", "field.angular_velocity.x",
+                         "field.angular_velocity.y", "field.angular_velocity.z",
+                         "field.linear_acceleration.x", "field.linear_acceleration.y",
+                         "field.linear_acceleration.z", "field.linear_acceleration_covariance0"],
+                        [("junk", ""), ("count", ""), ("t", "1e-9"), ("junk", ""),
+                         ("gx", "rad/s"), ("gy", "rad/s"), ("gz", "rad/s"), ("ax", "m/s^2"),
+                         ("ay", "m/s^2"), ("az", "m/s^2"), ("junk", "")]),
+    "PlotJuggler": (["__time", "/imu/angular_velocity/x", "/imu/angular_velocity/y",
+                     "/imu/angular_velocity/z", "/imu/linear_acceleration/x",
+                     "/imu/linear_acceleration/y", "/imu/linear_acceleration/z",
+                     "/imu/header/stamp"],
+                    [("junk", ""), ("gx", "rad/s"), ("gy", "rad/s"), ("gz", "rad/s"),
+                     ("ax", "m/s^2"), ("ay", "m/s^2"), ("az", "m/s^2"), ("t", "1")]),
+    "AndroSensor": (["LINEAR ACCELERATION X (m/s²)", "LINEAR ACCELERATION Y (m/s²)",
+                     "LINEAR ACCELERATION Z (m/s²)", "ACCELEROMETER X (m/s²)",
+                     "ACCELEROMETER Y (m/s²)", "ACCELEROMETER Z (m/s²)", "GYROSCOPE X (rad/s)",
+                     "GYROSCOPE Y (rad/s)", "GYROSCOPE Z (rad/s)", "Time since start in ms "],
+                    [("junk", ""), ("junk", ""), ("junk", ""), ("ax", "m/s^2"),
+                     ("ay", "m/s^2"), ("az", "m/s^2"), ("gx", "rad/s"), ("gy", "rad/s"),
+                     ("gz", "rad/s"), ("t", "1e-3")]),
+    "ST MEMS Studio": (["T [ms]", "A_X [mg]", "A_Y [mg]", "A_Z [mg]", "G_X [mdps]",
+                        "G_Y [mdps]", "G_Z [mdps]"],
+                       [("t", "1e-3"), ("ax", "mg"), ("ay", "mg"), ("az", "mg"),
+                        ("gx", "mdps"), ("gy", "mdps"), ("gz", "mdps")]),
+    "Bosch": (["timestamp_us", "accX", "accY", "accZ", "gyrX", "gyrY", "gyrZ"],
+              [("t", "1e-6"), ("ax", "g"), ("ay", "g"), ("az", "g"), ("gx", "deg/s"),
+               ("gy", "deg/s"), ("gz", "deg/s")]),
+    "Physics Toolbox": (["time", "gFx", "gFy", "gFz", "wx", "wy", "wz"],
+                        [("t", "1"), ("ax", "g"), ("ay", "g"), ("az", "g"), ("gx", "rad/s"),
+                         ("gy", "rad/s"), ("gz", "rad/s")]),
+}
+
+
+@pytest.mark.parametrize("logger", LOGGERS)
+def test_column_names_of_real_loggers(tmp_path, logger):
+    names, spec = LOGGERS[logger]
+    t0 = 1.7e9 if logger == "ROS rostopic -p" else 0.0
+    matrix, acc, gyro, t = _logger_table(spec, t0=t0)
+    path = tmp_path / "log.csv"
+    path.write_text(",".join(names) + "\n" + _rows(matrix))
+    s = load_session(path)
+    assert s.acc.shape == s.gyro.shape == (400, 3)
+    unit = next(u for r, u in spec if r == "ax")
+    g = G if unit == "m/s^2" else 1.0
+    assert s.acc_unit == ("m/s^2" if g != 1.0 else "g")
+    np.testing.assert_allclose(s.acc, acc * g, rtol=1e-12)
+    np.testing.assert_allclose(s.gyro, gyro, rtol=1e-12)
+    np.testing.assert_allclose(s.t_acc, t, rtol=1e-12)
+    assert s.acc_rate == pytest.approx(100.0, rel=1e-6)
+
+
+def test_android_sensor_logger_two_files(tmp_path):
+    """Sensor Logger writes one file per sensor: time (ns since the epoch), seconds_elapsed,
+    then z, y, x; the seconds_elapsed column is the sample's time."""
+    acc, gyro = _signals()
+    t = np.arange(400) / 100.0
+    paths = []
+    for name, values in (("Accelerometer.csv", acc * G), ("Gyroscope.csv", gyro)):
+        m = np.column_stack([1.7e18 + t * 1e9, t, values[:, ::-1]])
+        (tmp_path / name).write_text("time,seconds_elapsed,z,y,x\n" + _rows(m))
+        paths.append(tmp_path / name)
+    s = load_session(paths[0], gyro_path=paths[1])
+    np.testing.assert_allclose(s.acc, acc * G, rtol=1e-12)
+    np.testing.assert_array_equal(s.gyro, gyro)
+    np.testing.assert_array_equal(s.t_acc, t)
+
+
+def test_phyphox_two_files(tmp_path):
+    acc, gyro = _signals()
+    t = np.arange(400) / 100.0
+    a = tmp_path / "Accelerometer.csv"
+    a.write_text('"Time (s)","Acceleration x (m/s^2)","Acceleration y (m/s^2)",'
+                 '"Acceleration z (m/s^2)"\n' + _rows(np.column_stack([t, acc * G])))
+    w = tmp_path / "Gyroscope.csv"
+    w.write_text('"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)"\n'
+                 + _rows(np.column_stack([t, gyro])))
+    s = load_session(a, gyro_path=w)
+    assert s.acc_unit == "m/s^2" and s.gyro_unit == "rad/s"
+    np.testing.assert_array_equal(s.acc, acc * G)
+    np.testing.assert_array_equal(s.t_gyro, t)
+
+
+def test_unnamed_columns_get_a_guess_ready_to_paste(tmp_path, synthetic):
+    session, _ = synthetic
+    m = np.hstack([session.t_acc[:, None], session.acc, session.gyro,
+                   np.full((len(session.acc), 1), 25.0)])
+    path = tmp_path / "opaque.csv"
+    path.write_text("c0,c1,c2,c3,c4,c5,c6,temp\n" + _rows(m))
+    with pytest.raises(ImucalError) as info:
+        load_session(path)
+    message = str(info.value)
+    assert message.startswith("opaque.csv: columns: no accelerometer columns found (columns: c0, "
+                              "c1, c2, c3, c4, c5, c6, temp); expected names like ax/acc_x, or "
+                              "map them with --columns; by their values, c0 increases (time); "
+                              "c1, c2, c3 look like the accelerometer (norm ")
+    assert message.endswith("; c4, c5, c6 look like the gyroscope (quiet, with bursts): "
+                            "--columns t=c0,ax=c1,ay=c2,az=c3,gx=c4,gy=c5,gz=c6")
+    # pasted back, the guess loads the session
+    from imucal.cli.options import parse_columns
+    s = load_session(path, columns=parse_columns(message.split("--columns ")[-1]))
+    assert np.array_equal(s.acc, session.acc) and np.array_equal(s.t_acc, session.t_acc)
+
+
+def test_headerless_columns_get_positions_to_paste(tmp_path, synthetic):
+    session, _ = synthetic
+    m = np.hstack([session.gyro, session.t_acc[:, None], session.acc, session.acc[:, :2]])
+    path = tmp_path / "nine.txt"
+    path.write_text(_rows(m).replace(",", " "))
+    with pytest.raises(ImucalError) as info:
+        load_session(path)
+    message = str(info.value)
+    assert message.startswith("nine.txt: columns: found 9 column(s); expected 6 columns")
+    assert message.endswith("--columns t=3,ax=4,ay=5,az=6,gx=0,gy=1,gz=2")
+
+
+def test_two_equally_good_columns_name_the_option(tmp_path):
+    path = tmp_path / "twice.csv"
+    path.write_text("t,ax,ay,az,acc_x,gy,gz\n" + _rows(np.ones((5, 7))))
+    with pytest.raises(ImucalError) as info:
+        load_session(path)
+    assert str(info.value) == ("twice.csv: columns: columns 'ax' and 'acc_x' both look like "
+                               "'ax'; choose one with --columns ax=acc_x")

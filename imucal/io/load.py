@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.io.column_names import ROLES
+from imucal.io.column_names import LABELS, ROLES
 from imucal.io.file_contents import Table, Variables
 from imucal.io.file_facts import FileFacts, read_facts
 from imucal.io.mat_layout import from_variables
@@ -32,6 +32,7 @@ from imucal.io.time_base import MAX_RATE_HZ, own_rows, settle_time
 from imucal.io.units import (
     ACC_UNIT_KEYS,
     GYRO_UNIT_KEYS,
+    SCALED_UNITS,
     TIME_UNIT_KEYS,
     check_choice,
     check_unit_arg,
@@ -101,6 +102,9 @@ def load_session(
     if "gyro" in parts:
         gyro, t_gyro = settle_time(parts["gyro"], opts)
 
+    acc = _scale_named_unit(acc, parts["acc"], opts.notes)
+    if gyro is not None:
+        gyro = _scale_named_unit(gyro, parts["gyro"], opts.notes)
     acc_unit = resolve_acc_unit(acc, acc_unit, parts["acc"].unit_hint, parts["acc"].source,
                                 opts.notes)
     final_gyro_unit = None
@@ -192,6 +196,17 @@ def _sha256(paths: list[Path]) -> str:
                 digest.update(chunk)
     return digest.hexdigest()
 
+
+
+def _scale_named_unit(values: np.ndarray, part: Part, notes: list[str]) -> np.ndarray:
+    """Values in a unit only a column name uses (mg, mdeg/s) in the unit it scales."""
+    if part.unit_hint not in SCALED_UNITS:
+        return values
+    unit, scale = SCALED_UNITS[part.unit_hint]
+    notes.append(f"{LABELS[part.sensor]} converted from {part.unit_hint} to {unit}, as the "
+                 "column names say")
+    part.unit_hint = unit
+    return values * scale
 
 
 def _extract(content: Table | Variables, sensors: tuple[str, ...],

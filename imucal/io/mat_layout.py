@@ -30,7 +30,7 @@ def from_variables(content: Variables, sensors: tuple[str, ...],
     if not any(found[s] for s in sensors):
         return _single_matrix(content, sensors, shared, shared_t, opts)
     if columns_for(opts, sensors, source):
-        raise ImucalError("columns= applies to tables; this .mat file holds named variables",
+        raise ImucalError("--columns applies to tables; this .mat file holds named variables",
                           source=source, field="columns")
     if found["acc"] is None and "acc" in sensors:
         raise ImucalError(f"no accelerometer variable (expected one of {', '.join(_ACC_VARS)}); "

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from imucal.errors import ImucalError
+from imucal.io.column_guess import guess_hint, paste_name
 from imucal.io.column_names import AXES, LABELS, classify_name
 from imucal.io.file_contents import Table
 from imucal.io.parts import LoadOptions, Part, columns_for
@@ -43,8 +44,8 @@ def from_positions(table: Table, sensors: tuple[str, ...], opts: LoadOptions) ->
         return _parts_from_mapping(table, mapping, sensors, opts, counter=None)
     n = table.n_cols
     if n not in widths(sensors):
-        raise ImucalError(f"found {n} column(s); expected {expected(sensors)}", source=source,
-                          field="columns")
+        raise ImucalError(f"found {n} column(s); expected {expected(sensors)}"
+                          f"{guess_hint(table, sensors)}", source=source, field="columns")
     offset = 1 if n in (4, 7) else 0
     mapping = {"t": 0} if offset else {}
     roles = AXES[sensors[0]] + (AXES["gyro"] if n >= 6 else ())
@@ -59,6 +60,7 @@ def from_names(table: Table, sensors: tuple[str, ...], opts: LoadOptions) -> dic
     wanted = {"t", *(r for s in sensors for r in AXES[s])}
     mapping: dict[str, int] = {}
     units: dict[str, str | None] = {}
+    ranks: dict[str, int] = {}
     counter = None
     explicit = _explicit_columns(table, columns_for(opts, sensors, table.source))
     taken = set(explicit.values())
@@ -69,13 +71,15 @@ def from_names(table: Table, sensors: tuple[str, ...], opts: LoadOptions) -> dic
         if meaning.role == "counter":
             counter = counter or table.label(i)
         elif meaning.role in wanted and meaning.role not in explicit:
-            if meaning.role in mapping:
-                other = table.names[mapping[meaning.role]]
-                raise ImucalError(f"columns {other!r} and {name!r} both look like {meaning.role!r}"
-                                  f"; choose one with columns={{{meaning.role!r}: ...}}",
+            role = meaning.role
+            if role in mapping and ranks[role] <= meaning.rank:
+                if ranks[role] < meaning.rank:
+                    continue  # a better name holds this role ("time" beside "header.stamp")
+                other = table.names[mapping[role]]
+                raise ImucalError(f"columns {other!r} and {name!r} both look like {role!r}; "
+                                  f"choose one with --columns {role}={paste_name(table, i)}",
                                   source=table.source, field="columns")
-            mapping[meaning.role] = i
-            units[meaning.role] = meaning.unit
+            mapping[role], units[role], ranks[role] = i, meaning.unit, meaning.rank
     for role, i in explicit.items():  # a unit in an explicitly mapped name still counts
         meaning = classify_name(table.names[i], single)
         units[role] = meaning.unit if meaning.role == role else None
@@ -129,12 +133,13 @@ def _parts_from_mapping(table: Table, mapping: dict[str, int], sensors: tuple[st
                 raise ImucalError(
                     f"no {LABELS[sensor]} columns found (columns: {have}); expected names like "
                     f"{example}{roles[0]}/{'acc_x' if sensor == 'acc' else 'gyr_x'}, or map "
-                    "them with columns=", source=table.source, field="columns",
-                )
+                    f"them with --columns{guess_hint(table, sensors)}", source=table.source,
+                    field="columns")
             continue
         if len(present) < 3:
             missing = [r for r in roles if r not in mapping]
-            raise ImucalError(f"{LABELS[sensor]} columns incomplete: missing {', '.join(missing)}",
+            raise ImucalError(f"{LABELS[sensor]} columns incomplete: missing {', '.join(missing)}"
+                              f"; map them with --columns{guess_hint(table, sensors)}",
                               source=table.source, field="columns")
         values = np.column_stack([table.column(mapping[r]) for r in roles])
         part = Part(sensor, table.source, values, counter_label=counter)

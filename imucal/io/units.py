@@ -13,7 +13,8 @@ import numpy as np
 
 from imucal.errors import ImucalError
 
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9,
+              "100us": 1e-4}  # the last only as a name implies it (Xsens SampleTimeFine)
 
 
 def unit_key(text: str) -> str:
@@ -38,8 +39,13 @@ GYRO_UNIT_KEYS = {
 TIME_UNIT_KEYS = {
     "s": "s", "sec": "s", "secs": "s", "second": "s", "seconds": "s",
     "ms": "ms", "msec": "ms", "millis": "ms", "us": "us", "usec": "us", "micros": "us",
-    "ns": "ns", "nsec": "ns", "nanos": "ns",
+    "ns": "ns", "nsec": "ns", "nanos": "ns", "nanosec": "ns",
 }
+# Units only column names use (ST's "A_X [mg]", "G_X [mdps]"): converted on load, as deg/s is.
+SCALED_UNITS = {"mg": ("g", 1e-3), "mdeg/s": ("deg/s", 1e-3)}
+ACC_NAME_UNITS = {**ACC_UNIT_KEYS, "mg": "mg", "millig": "mg"}
+GYRO_NAME_UNITS = {**GYRO_UNIT_KEYS, "mdps": "mdeg/s", "mdegs": "mdeg/s", "degsec": "deg/s",
+                   "radsec": "rad/s"}
 
 
 def check_choice(value: str, keys: dict[str, str], name: str, source: str) -> str:
