@@ -23,26 +23,32 @@ def drop_cut_last_line(body: bytes, sep: str, n_fields: int, decimal_comma: bool
     """``body`` without a cut last line, and a note saying which line was dropped (or None).
 
     ``n_fields`` is the table's width, ``first_line`` the file line ``body`` starts on."""
-    end = len(body.rstrip(_BLANKS))
+    # Offsets, not slices: the body may be a large file, and most have nothing cut.
+    end = _end_of_content(body, len(body))
     start = body.rfind(b"\n", 0, end) + 1
-    if start == 0:
+    before_end = _end_of_content(body, start)
+    if start == 0 or before_end == 0:
         return body, None  # one line: no line before it to measure against
-    before = body[:start].rstrip(_BLANKS)
-    if not before:
-        return body, None
-    previous = before[before.rfind(b"\n") + 1:].decode("utf-8", errors="replace")
-    if len(split_fields(previous, sep)) != n_fields:
+    previous = body[body.rfind(b"\n", 0, before_end) + 1:before_end]
+    if len(split_fields(previous.decode("utf-8", errors="replace"), sep)) != n_fields:
         return body, None
     fields = split_fields(body[start:end].decode("utf-8", errors="replace"), sep)
-    line = first_line + body.count(b"\n", 0, start)
     if len(fields) < n_fields:
         why = f"has {len(fields)} of {n_fields} fields"
     elif len(fields) == n_fields and _cut_number(fields[-1], decimal_comma):
         why = f"ends in {fields[-1]!r}, a number cut short"
     else:
         return body, None
+    line = first_line + body.count(b"\n", 0, start)
     return body[:start], (f"dropped the last line (line {line}): it {why}, as a logger stopped "
                           "mid-write leaves it")
+
+
+def _end_of_content(body: bytes, end: int) -> int:
+    """``end`` moved back over blank bytes."""
+    while end > 0 and body[end - 1] in _BLANKS:
+        end -= 1
+    return end
 
 
 def _cut_number(token: str, decimal_comma: bool) -> bool:
