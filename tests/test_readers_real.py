@@ -376,3 +376,13 @@ def test_two_equally_good_columns_name_the_option(tmp_path):
         load_session(path)
     assert str(info.value) == ("twice.csv: columns: columns 'ax' and 'acc_x' both look like "
                                "'ax'; choose one with --columns ax=acc_x")
+
+
+# --- 5. the loader in modules of one idea each ------------------------------------------------
+
+
+def test_no_io_module_outgrows_one_idea():
+    io_dir = Path(__file__).resolve().parents[1] / "imucal" / "io"
+    sizes = {p.name: len(p.read_text().splitlines()) for p in io_dir.glob("*.py")}
+    assert "load.py" in sizes and "column_names.py" in sizes and "time_base.py" in sizes
+    assert {name: n for name, n in sizes.items() if n > 400} == {}
