@@ -66,6 +66,11 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                             "rotations through them are under-measured; turn more slowly")
     block_times = np.column_stack([session.t_acc[det.blocks[:, 0]],
                                    session.t_acc[det.blocks[:, 1] - 1]])
+    if session.init_still_s is not None:  # a hint the file gave; only reported for now (§1)
+        t0, t1 = block_times[0] - session.t_acc[0]
+        warnings.append(f"the file states an initial still period of {session.init_still_s:g} "
+                        f"s; the first still block found spans {t0:.1f}-{t1:.1f} s (the stated "
+                        "length is not used by the detector)")
 
     # A first whole-session fit: it gives the grouping calibrated magnitudes (method.md §2).
     whole = calibrate_accelerometer(session.acc, det.blocks, acc_unit=session.acc_unit,

@@ -30,6 +30,9 @@ class Session:
     source: str = "<memory>"
     sha256: str = ""
     notes: tuple[str, ...] = field(default_factory=tuple)
+    # The initial still period the file states (s), a hint for the static detector (method.md
+    # §1); None where the file says nothing.
+    init_still_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.acc_unit not in ACC_UNITS:

@@ -167,8 +167,8 @@ def apply(
 
 @app.command()
 def synth(
-    out: Annotated[Path, typer.Argument(metavar="OUT.mat", show_default=False,
-                                        help="Session file to write (MATLAB v5).")],
+    out: Annotated[Path, typer.Argument(metavar="OUT.mat|OUT.csv", show_default=False,
+                                        help="Session file to write (MATLAB v5, or CSV).")],
     truth: Annotated[Path | None, typer.Option(
         "--truth", metavar="PATH", show_default=False,
         help="Where to write the true parameters [default: OUT.truth.json].")] = None,
@@ -211,9 +211,21 @@ def synth(
         "--gyro-unit", metavar="rad/s|deg/s|counts",
         callback=choice(GYRO_UNITS, "rad/s, deg/s or counts", allow_auto=False),
         help="Unit of the written gyroscope.")] = "rad/s",
+    preamble: Annotated[bool, typer.Option(
+        "--preamble", help="CSV: key,value lines above the header stating the rate and the "
+                           "initial still period, and no time column.")] = False,
+    cut_last_line: Annotated[bool, typer.Option(
+        "--cut-last-line", help="CSV: end in the middle of the last row, as a logger killed "
+                                "mid-write does.")] = False,
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
+    csv = out.suffix.lower() == ".csv"
+    if (preamble or cut_last_line) and not csv:
+        raise usage_error("--preamble and --cut-last-line shape a CSV: name OUT.csv", "'OUT'")
+    if csv and gyro_rate not in (None, acc_rate):
+        raise usage_error("a CSV holds one table: the gyroscope runs at the accelerometer's rate",
+                          "'--gyro-rate'")
     if poses is not None and minutes is not None:
         raise usage_error("give either --poses or --minutes, not both", "'--minutes'")
     if minutes is not None:
@@ -223,7 +235,7 @@ def synth(
     truth = truth if truth is not None else out.with_suffix(".truth.json")
     check_outputs([out, truth], [])
     progress = Progress(verbose)
-    from imucal.io.export import write_session_mat, write_truth
+    from imucal.io.export import write_session_csv, write_session_mat, write_truth
     from imucal.synth import make_session
 
     with progress.stage(f"generating {poses} poses"):
@@ -232,7 +244,12 @@ def synth(
                                 acc_noise=acc_noise, gyro_noise=gyro_noise, gyro_drift=drift,
                                 change_at=change_at, acc_unit=acc_unit, gyro_unit=gyro_unit)
     with progress.stage(f"writing {out}"):
-        write_session_mat(out, sess, gyro_unit=gyro_unit)
+        if csv:
+            stated = {"sample_rate_hz": acc_rate, "init_still_s": init_still}
+            write_session_csv(out, sess, gyro_unit=gyro_unit,
+                              preamble=stated if preamble else None, cut_last_line=cut_last_line)
+        else:
+            write_session_mat(out, sess, gyro_unit=gyro_unit)
         write_truth(truth, tr)
     change = "" if tr.t_change is None else f", parameters change at {tr.t_change:.1f} s"
     print(f"session         {poses} poses, {sess.duration:.1f} s, accelerometer "

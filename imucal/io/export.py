@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from pathlib import Path
@@ -45,6 +46,35 @@ def write_session_mat(path: str | os.PathLike, session: Session, gyro_unit: str 
             savemat(f, data, do_compression=True, oned_as="column")
 
     write_atomic(path, _w)
+
+
+def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str | None = None,
+                      *, preamble: dict[str, float] | None = None,
+                      cut_last_line: bool = False) -> None:
+    """A session as one CSV table, as a logger writes it: ``t,ax,ay,az,gx,gy,gz``; with a
+    ``preamble`` of ``key,value`` lines above the header and no time column instead (the rate
+    is in the preamble); ``cut_last_line`` ends the file in the middle of its last row, as a
+    logger killed mid-write leaves it. Numbers are written to round-trip exactly."""
+    if not session.has_gyro or not np.array_equal(session.t_acc, session.t_gyro):
+        raise ValueError("a CSV session needs the gyroscope at the accelerometer's timestamps")
+    gyro = session.gyro
+    if gyro_unit == "deg/s":
+        gyro = np.rad2deg(gyro)
+    columns = [session.acc, gyro]
+    names = ["ax", "ay", "az", "gx", "gy", "gz"]
+    head = ""
+    if preamble is None:
+        columns.insert(0, session.t_acc[:, None])
+        names.insert(0, "t")
+    else:
+        head = "".join(f"{key},{value:g}\n" for key, value in preamble.items())
+    buf = io.StringIO()
+    np.savetxt(buf, np.hstack(columns), fmt="%.17g", delimiter=",")
+    text = head + ",".join(names) + "\n" + buf.getvalue()
+    if cut_last_line:
+        last = text.rindex("\n", 0, len(text) - 1) + 1
+        text = text[: last + (len(text) - last) // 2]  # half a row, no newline after it
+    write_text_atomic(path, text)
 
 
 def write_truth(path: str | os.PathLike, truth: Truth) -> None:

@@ -1,7 +1,7 @@
 """What a reader makes of a file (method.md §0): a table of columns, or named variables.
 
 Both are raw material: which columns or variables hold time, the accelerometer and the
-gyroscope is decided by :mod:`imucal.load`.
+gyroscope is decided by :mod:`imucal.io.load`.
 """
 
 from __future__ import annotations
@@ -23,6 +23,10 @@ class Table:
     seconds_cols: frozenset[int] = frozenset()  # date-times already turned into seconds
     shared_time: np.ndarray | None = None  # a separate time vector next to a .mat matrix
     shared_time_name: str = ""
+    # ``key<sep>value`` lines above the table (and in its comments), as (line, key, value):
+    # what a logger says of its recording (rate, time unit, initial still period)
+    preamble: tuple[tuple[int, str, str], ...] = ()
+    notes: tuple[str, ...] = ()  # what the reader did that the user should know (a cut line)
 
     def label(self, i: int) -> str:
         return f"column {self.names[i]!r}" if self.names else f"column {i + 1}"

@@ -17,6 +17,8 @@ import numpy as np
 
 from imucal.errors import ImucalError, plural
 from imucal.io.file_contents import Table
+from imucal.io.text_cut import drop_cut_last_line
+from imucal.io.text_preamble import find_table_start, is_number, sniff_separator, split_fields
 
 if TYPE_CHECKING:
     import polars as pl
@@ -24,14 +26,15 @@ if TYPE_CHECKING:
 
 def read_text(data: bytes, source: str) -> Table:
     data = data.removeprefix(b"\xef\xbb\xbf")
-    start, end, comments = _skip_preamble(data)
+    found = find_table_start(data)
+    start, end, comments = found.start, found.end, found.comments
     if start is None:
         raise ImucalError("no data: the file holds only blank or comment lines", source=source)
     first = data[start:end].decode("utf-8", errors="replace")
-    sep = _sniff_separator(first)
-    fields = _split_fields(first, sep)
+    sep = sniff_separator(first)
+    fields = split_fields(first, sep)
     names: list[str] | None = None
-    if any(tok and not _is_number(tok) for tok in fields):
+    if any(tok and not is_number(tok) for tok in fields):
         names = [tok.strip().strip("\"'") for tok in fields]
         body_start = end + 1
         units, after = _units_row(data, body_start, sep, len(names))
@@ -44,7 +47,12 @@ def read_text(data: bytes, source: str) -> Table:
     body = data[body_start:]
     first_line = data.count(b"\n", 0, body_start) + 1  # 1-based file line of the body's start
     decimal_comma = sep == ";" and b"," in body[:4096]  # "1,5;2,0": European spreadsheets
-    return _parse_body(body, sep, names, decimal_comma, first_line, source)
+    n_fields = len(names) if names else len(fields)
+    body, cut = drop_cut_last_line(body, sep, n_fields, decimal_comma, first_line)
+    table = _parse_body(body, sep, names, decimal_comma, first_line, source)
+    table.preamble = tuple(found.pairs)
+    table.notes = (f"{source}: {cut}",) if cut else ()
+    return table
 
 
 def _units_row(data: bytes, pos: int, sep: str, n_fields: int) -> tuple[list[str] | None, int]:
@@ -53,9 +61,9 @@ def _units_row(data: bytes, pos: int, sep: str, n_fields: int) -> tuple[list[str
     end = data.find(b"\n", pos)
     end = len(data) if end < 0 else end
     line = data[pos:end].decode("utf-8", errors="replace").strip("\r")
-    fields = [tok.strip().strip("\"'") for tok in _split_fields(line, sep)]
+    fields = [tok.strip().strip("\"'") for tok in split_fields(line, sep)]
     if (len(fields) != n_fields or not any(fields)
-            or any(tok and _is_number(tok) for tok in fields)
+            or any(tok and is_number(tok) for tok in fields)
             or not all(len(tok) <= 12 and _UNIT_CHARS.match(tok) for tok in fields)):
         return None, pos
     return [tok.strip("[]()") for tok in fields], end + 1
@@ -65,46 +73,12 @@ def _units_row(data: bytes, pos: int, sep: str, n_fields: int) -> tuple[list[str
 _UNIT_CHARS = re.compile(r"^[\w/^°µ²()\[\] .*-]*$")
 
 
-def _skip_preamble(data: bytes) -> tuple[int | None, int, list[str]]:
-    """Offsets of the first content line, skipping blank lines and #, % or // comments."""
-    pos, comments = 0, []
-    while pos < len(data):
-        end = data.find(b"\n", pos)
-        end = len(data) if end < 0 else end
-        line = data[pos:end].strip()
-        if line.startswith((b"#", b"%", b"//")):
-            comments.append(line.decode("utf-8", errors="replace"))
-        elif line:
-            return pos, end, comments
-        pos = end + 1
-    return None, 0, comments
-
-
-def _sniff_separator(line: str) -> str:
-    for sep in (",", "\t", ";"):
-        if sep in line:
-            return sep
-    return " "  # any run of spaces or tabs
-
-
-def _split_fields(line: str, sep: str) -> list[str]:
-    return line.split() if sep == " " else [tok.strip() for tok in line.strip("\r\n").split(sep)]
-
-
-def _is_number(token: str) -> bool:
-    try:
-        float(token.strip().strip("\"'").replace(",", "."))
-    except ValueError:
-        return False
-    return True
-
-
 def _commented_header(comments: list[str], sep: str, n_fields: int) -> list[str] | None:
     """Use "# t ax ay az" above headerless data (numpy.savetxt's style) as the header."""
     if not comments:
         return None
-    fields = _split_fields(comments[-1].lstrip("#%/").strip(), sep)
-    if len(fields) == n_fields and all(fields) and not any(_is_number(f) for f in fields):
+    fields = split_fields(comments[-1].lstrip("#%/").strip(), sep)
+    if len(fields) == n_fields and all(fields) and not any(is_number(f) for f in fields):
         return fields
     return None
 

@@ -1,0 +1,132 @@
+"""Units of a recording (method.md §0): their spellings, and the guesses from the values.
+
+One table of spellings serves the arguments (``--acc-unit m/s^2``), the hints in column names
+(``acc_x (m/s²)``) and a file's own statements; where none says, the unit is guessed from the
+values and the guess is recorded in the session notes.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from imucal.errors import ImucalError
+
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9,
+              "100us": 1e-4}  # the last only as a name implies it (Xsens SampleTimeFine)
+
+
+def unit_key(text: str) -> str:
+    """'m/s^2' -> 'ms2', 'deg/s' -> 'degs', '°/s' -> 'degs', 'µs' -> 'us'."""
+    return re.sub(r"[^a-z0-9]", "", unit_key_spaced(text.strip().lower()))
+
+
+def unit_key_spaced(text: str) -> str:
+    """Like :func:`unit_key` but keeps token boundaries ("acc_x_m/s^2" -> "acc x m s 2")."""
+    text = text.replace("°", "deg").replace("²", "2").replace("µ", "u").replace("μ", "u")
+    return re.sub(r"[^a-z0-9]+", " ", text)
+
+
+ACC_UNIT_KEYS = {
+    "g": "g", "ms2": "m/s^2", "mss": "m/s^2", "mps2": "m/s^2", "msec2": "m/s^2",
+    "counts": "counts", "count": "counts", "raw": "counts", "lsb": "counts", "adc": "counts",
+}
+GYRO_UNIT_KEYS = {
+    "rads": "rad/s", "radpers": "rad/s", "degs": "deg/s", "dps": "deg/s", "degpers": "deg/s",
+    "counts": "counts", "count": "counts", "raw": "counts", "lsb": "counts", "adc": "counts",
+}
+TIME_UNIT_KEYS = {
+    "s": "s", "sec": "s", "secs": "s", "second": "s", "seconds": "s",
+    "ms": "ms", "msec": "ms", "millis": "ms", "us": "us", "usec": "us", "micros": "us",
+    "ns": "ns", "nsec": "ns", "nanos": "ns", "nanosec": "ns",
+}
+# Units only column names use (ST's "A_X [mg]", "G_X [mdps]"): converted on load, as deg/s is.
+SCALED_UNITS = {"mg": ("g", 1e-3), "mdeg/s": ("deg/s", 1e-3)}
+ACC_NAME_UNITS = {**ACC_UNIT_KEYS, "mg": "mg", "millig": "mg"}
+GYRO_NAME_UNITS = {**GYRO_UNIT_KEYS, "mdps": "mdeg/s", "mdegs": "mdeg/s", "degsec": "deg/s",
+                   "radsec": "rad/s"}
+
+
+def check_choice(value: str, keys: dict[str, str], name: str, source: str) -> str:
+    canonical = keys.get(unit_key(value)) if isinstance(value, str) else None
+    if canonical is None:
+        choices = ", ".join(sorted(set(keys.values())))
+        raise ImucalError(f"expected one of {choices}, got {value!r}", source=source, field=name)
+    return canonical
+
+
+def check_unit_arg(value: str, keys: dict[str, str], name: str, source: str) -> str:
+    if isinstance(value, str) and value.strip().lower() == "auto":
+        return "auto"
+    return check_choice(value, {**keys, "auto": "auto"}, name, source)
+
+
+# --- guesses from the values ---------------------------------------------------------------------
+
+
+def _integer_like(x: np.ndarray) -> bool:
+    # Interpolated gaps are not integers; a few of them must not hide raw counts.
+    return bool(np.mean(x == np.round(x)) >= 0.99)
+
+
+def guess_acc_unit(acc: np.ndarray) -> tuple[str | None, float]:
+    """The unit the median norm suggests (1 g, 9.8 m/s^2, or raw counts), and that norm."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = float(np.median(np.linalg.norm(acc, axis=1)))
+        if 0.5 <= norm <= 2.0:
+            return "g", norm
+        if 5.0 <= norm <= 20.0:
+            return "m/s^2", norm
+        if float(np.median(np.abs(acc))) > 100 or (norm > 50 and _integer_like(acc)):
+            return "counts", norm
+    return None, norm
+
+
+def resolve_acc_unit(acc: np.ndarray, unit: str, hint: str | None, source: str,
+                     notes: list[str]) -> str:
+    """The user's unit, else the one the file names, else the guess; doubts become notes."""
+    guess, norm = guess_acc_unit(acc)
+    if unit != "auto":
+        if guess is not None and guess != unit:
+            notes.append(f"acc_unit {unit} given, but the median norm {norm:.4g} looks like "
+                         f"{guess}")
+        return unit
+    if hint is not None:
+        doubt = ""
+        if guess not in (None, hint):
+            doubt = f", though the median norm {norm:.4g} looks like {guess}"
+        notes.append(f"accelerometer unit {hint} from the column names{doubt} (set --acc-unit to "
+                     "override)")
+        return hint
+    if guess is None:
+        raise ImucalError(
+            f"cannot tell the accelerometer unit: median norm {norm:.4g} is not near 1 (g), "
+            "9.8 (m/s^2) or raw counts; set --acc-unit", source=source, field="acc_unit",
+        )
+    notes.append(f"accelerometer unit guessed as {guess} from median norm {norm:.4g} (set "
+                 "--acc-unit to override)")
+    return guess
+
+
+def resolve_gyro_unit(gyro: np.ndarray, unit: str, hint: str | None, acc_unit: str,
+                      notes: list[str]) -> str:
+    """The user's unit, else the one the file names, else a guess from the magnitudes."""
+    if unit != "auto":
+        return unit
+    if hint is not None:
+        notes.append(f"gyroscope unit {hint} from the column names (set --gyro-unit to "
+                     "override)")
+        return hint
+    magnitude = np.abs(gyro)
+    median = float(np.median(magnitude))
+    p995 = float(np.percentile(magnitude, 99.5))
+    if acc_unit == "counts" and median > 100 and _integer_like(gyro):
+        guess, why = "counts", f"integer values with median |value| {median:.4g}"
+    elif p995 > 20:
+        guess, why = "deg/s", f"99.5th percentile of |w| {p995:.4g} (too fast for rad/s)"
+    else:
+        guess, why = "rad/s", f"99.5th percentile of |w| {p995:.4g}"
+    notes.append(f"gyroscope unit guessed as {guess} from {why} (set --gyro-unit to "
+                 "override)")
+    return guess
