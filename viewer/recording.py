@@ -116,6 +116,7 @@ import rerun as rr
 
 from imucal.io.atomic import atomic_path, check_output_path
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, acc_theta, gyro_theta
+from imucal.numerics.windows import samples_within
 
 from . import paths as P
 from .decimate import detail_envelope, envelope
@@ -252,11 +253,8 @@ def _log_signals(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) 
     if not s.has_gyro or cal.gyro is None:
         return
     raw_mag = np.linalg.norm(gyro_nominal(result), axis=1)
-    bt = result.block_times
-    lo = np.searchsorted(s.t_gyro, bt[:, 0], side="left")
-    hi = np.searchsorted(s.t_gyro, bt[:, 1], side="right")
     still = np.zeros(len(s.t_gyro), bool)
-    still[_block_samples(np.column_stack([lo, hi]))] = True
+    still[_block_samples(samples_within(s.t_gyro, result.block_times))] = True
     t, v = _magnitudes(s.t_gyro, np.column_stack([raw_mag, cal.gyro_norm]), still)
     rows[P.GYRO_MAGNITUDE] = _send_scalars(rec, P.GYRO_MAGNITUDE, t, v)
     _style_lines(rec, P.GYRO_MAGNITUDE, ["raw |w| (rad/s, nominal)", "calibrated |w| (rad/s)"],

@@ -18,7 +18,7 @@ from imucal.numerics.least_squares import (
 )
 from imucal.numerics.quaternion import rotate_inverse, to_matrix
 from imucal.numerics.rk4 import SLAB, StepLayout, calibrator, mul, product_rows
-from imucal.numerics.windows import segment_sums
+from imucal.numerics.windows import samples_within, segment_sums
 from imucal.settings import GyroSettings, Settings
 from imucal.stages.saturation import blocks_with
 
@@ -233,9 +233,9 @@ def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def static_bias(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray, how: str
                 ) -> tuple[np.ndarray, str]:
-    """Gyroscope bias from the still periods (method.md §4)."""
-    lo = np.searchsorted(t, block_times[:, 0], side="left")
-    hi = np.searchsorted(t, block_times[:, 1], side="left")
+    """Gyroscope bias from the still periods (method.md §4): the samples of each block are
+    those of :func:`~imucal.numerics.windows.samples_within` (the product's one convention)."""
+    lo, hi = samples_within(t, block_times).T
     ok = (hi - lo) >= 2
     if not ok.any():
         raise ImucalError("no gyroscope samples fall inside the static blocks; check that the "
