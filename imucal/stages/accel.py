@@ -7,10 +7,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T
+from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T, acc_theta
 from imucal.numerics.lcurve import lcurve_corner
 from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov
-from imucal.numerics.windows import segment_sums
+from imucal.numerics.windows import block_means, segment_sums
 from imucal.settings import AccSettings, Settings
 
 TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
@@ -59,11 +59,29 @@ class AccFit:
     lcurve: LCurve | None
     n_points: int
     n_blocks: int
+    sweep: LambdaSweep | None = None  # the L-curve's solutions in raw units (None: fixed lambda)
     warnings: list[str] = field(default_factory=list)
 
     def model_for(self, theta_nominal: np.ndarray) -> SensorModel:
         """The raw-unit model of a nominal-frame solution (an L-curve point, an LM step)."""
         return to_raw_model(theta_nominal, self.nominal, self.g_out)
+
+    @property
+    def params(self) -> np.ndarray:
+        """(9,) the solution's raw-unit parameters, in ``ACC_PARAM_NAMES`` order."""
+        return acc_theta(self.model)
+
+    @property
+    def trace_params(self) -> np.ndarray:
+        """(I, 9) raw-unit parameters at each accepted step of the fit (``report.trace_theta``,
+        what the optimiser's report records), in ``ACC_PARAM_NAMES`` order."""
+        return raw_params(self.report.trace_theta, self.nominal, self.g_out)
+
+    def nominal_norm(self, acc_raw: np.ndarray) -> np.ndarray:
+        """``|a_raw|`` through the nominal frame, in the calibrated unit: what the sensor reads
+        before calibration (the raw signal itself for input in g or m/s^2; offset and scale of
+        the sphere fit for raw counts), to set beside the calibrated magnitude."""
+        return np.linalg.norm(self.nominal.to_nominal(acc_raw), axis=1) * self.g_out
 
 
 def to_raw_model(theta: np.ndarray, nominal: Nominal, g_out: float) -> SensorModel:
@@ -264,9 +282,11 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     d = np.r_[np.ones(3), np.full(3, k_scale), np.full(3, nominal.scale)]
     cov = report.cov * np.outer(d, d)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    sweep = None if curve is None else lambda_sweep(curve, nominal, g_out,
+                                                    block_means(acc, blocks))
     return AccFit(model=model, std=std, cov=cov, theta_nominal=theta, nominal=nominal, g_out=g_out,
                   lam=lam, report=report, starts=start_costs, lcurve=curve,
-                  n_points=len(pts), n_blocks=len(blocks), warnings=warnings)
+                  n_points=len(pts), n_blocks=len(blocks), sweep=sweep, warnings=warnings)
 
 
 def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
@@ -367,3 +387,39 @@ def undetermined(J: np.ndarray, names: tuple[str, ...], rel: float = 1e-3) -> li
                 if names[j] not in weak:
                     weak.append(names[j])
     return weak
+
+
+@dataclass(frozen=True)
+class LambdaSweep:
+    """What each lambda of the L-curve would have given (thesis ch. 5): its solution in raw
+    units and the error it leaves on the still blocks, the figure the corner is judged by."""
+
+    params: np.ndarray  # (L, 9) raw-unit parameters at each of LCurve.lambdas (ACC_PARAM_NAMES)
+    block_norm_error_mg: np.ndarray  # (L, B) |mean a| / |g| - 1 of each still block, mg
+
+    @property
+    def static_norm_rms_mg(self) -> np.ndarray:
+        """(L,) RMS over the still blocks: the quality figure (method.md §5) at each lambda."""
+        return np.sqrt(np.mean(np.square(self.block_norm_error_mg), axis=1))
+
+    @property
+    def static_norm_max_mg(self) -> np.ndarray:
+        """(L,) the largest block error in absolute value at each lambda."""
+        return np.max(np.abs(self.block_norm_error_mg), axis=1)
+
+
+def raw_params(thetas: np.ndarray, nominal: Nominal, g_out: float) -> np.ndarray:
+    """(k, 9) raw-unit parameters of nominal-frame solutions (rows of ``thetas``)."""
+    return np.array([acc_theta(to_raw_model(th, nominal, g_out)) for th in thetas]).reshape(-1, 9)
+
+
+def lambda_sweep(curve: LCurve, nominal: Nominal, g_out: float, means_raw: np.ndarray
+                 ) -> LambdaSweep:
+    """The L-curve's solutions in raw units, each applied to the still blocks' raw means: the
+    model is affine, so calibrating a block's mean equals averaging its calibrated samples."""
+    errors = np.empty((len(curve.thetas), len(means_raw)))
+    for i, th in enumerate(curve.thetas):
+        a = to_raw_model(th, nominal, g_out).apply(means_raw)
+        errors[i] = (np.linalg.norm(a, axis=1) / g_out - 1.0) * 1e3
+    return LambdaSweep(params=raw_params(curve.thetas, nominal, g_out),
+                       block_norm_error_mg=errors)

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.models import GYRO_THETA0, SensorModel, gyro_T
+from imucal.models import GYRO_PARAM_NAMES, GYRO_THETA0, SensorModel, gyro_T, gyro_theta
 from imucal.numerics.least_squares import (
     FactoredCov,
     FitReport,
@@ -199,6 +199,37 @@ class GyroFit:
         relative to the nominal scale, and an optimised bias a correction in nominal rad/s on
         top of the static one (M4)."""
         return gyro_model_of(theta, self.static_bias, self.nominal_scale)
+
+    @property
+    def params(self) -> np.ndarray:
+        """(9,) misalignments and scales of the solution (``GYRO_PARAM_NAMES``); the bias is
+        ``model.b``."""
+        return gyro_theta(self.model)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """Names of ``std``: the 9 of M4, and the bias when it was optimised."""
+        return GYRO_PARAM_NAMES + (("b_x", "b_y", "b_z") if len(self.std) > 9 else ())
+
+    @property
+    def trace_params(self) -> np.ndarray:
+        """(I, 9) :attr:`params` at each accepted step of the fit (``report.trace_theta``, what
+        the optimiser's report records)."""
+        return np.array([gyro_theta(self.model_for(th))
+                         for th in self.report.trace_theta]).reshape(-1, 9)
+
+    @property
+    def trace_bias(self) -> np.ndarray:
+        """(I, 3) the raw-unit bias at each accepted step (constant unless optimised)."""
+        return np.array([self.model_for(th).b for th in self.report.trace_theta]).reshape(-1, 3)
+
+    def nominal_rate(self, w_raw: np.ndarray, unit: str) -> np.ndarray:
+        """The raw rate in nominal rad/s, uncalibrated, to set beside the calibrated one: the
+        signal itself for input in rad/s; raw counts (which carry an ADC offset) less the bias,
+        times the nominal scale."""
+        if unit != "counts":
+            return w_raw
+        return (w_raw - self.model.b) * self.nominal_scale
 
     @property
     def u_blocks(self) -> np.ndarray:
