@@ -16,6 +16,7 @@ from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
 from imucal.stages.gyro import GyroFit
 from imucal.stages.quality import Quality
+from imucal.warning import RunWarning
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,7 @@ class Result:
     calibrated: CalibratedSignals
     quality: Quality
     g_in: float
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[RunWarning] = field(default_factory=list)
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

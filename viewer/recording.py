@@ -581,13 +581,14 @@ def _log_results(result: Result, rec: rr.RecordingStream) -> None:
                 transitions_excluded=int(g.excluded.sum()),
                 cost_start=float(g.report.cost_start),
                 cost_end=float(g.report.cost)), static=True)
-    ga = q.gravity_angle_rms_deg or (None, None)
+    ga = q.gravity_angle_rms_deg
     rec.log(P.QUALITY, rr.AnyValues(
-        static_norm_rms_mg_before=_nan(q.static_norm_rms_mg[0]),
-        static_norm_rms_mg_after=_nan(q.static_norm_rms_mg[1]),
-        sample_norm_rms_mg_before=_nan(q.sample_norm_rms_mg[0]),
-        sample_norm_rms_mg_after=_nan(q.sample_norm_rms_mg[1]),
-        gravity_angle_rms_deg_before=_nan(ga[0]), gravity_angle_rms_deg_after=_nan(ga[1]),
+        static_norm_rms_mg_before=_nan(q.static_norm_rms_mg.before),
+        static_norm_rms_mg_after=_nan(q.static_norm_rms_mg.after),
+        sample_norm_rms_mg_before=_nan(q.sample_norm_rms_mg.before),
+        sample_norm_rms_mg_after=_nan(q.sample_norm_rms_mg.after),
+        gravity_angle_rms_deg_before=_nan(None if ga is None else ga.before),
+        gravity_angle_rms_deg_after=_nan(None if ga is None else ga.after),
         block_norm_error_mg=np.asarray(q.block_norm_error_mg, float)), static=True)
     rec.log(P.INFO, rr.AnyValues(
         source=s.source, sha256=s.sha256 or "-", acc_unit_raw=s.acc_unit,
@@ -596,7 +597,9 @@ def _log_results(result: Result, rec: rr.RecordingStream) -> None:
         n_blocks=int(len(result.block_times)), n_segments=int(len(result.segments)),
         grouping=result.grouping.mode, settings=json.dumps(result.settings.to_dict()),
         n_warnings=int(len(result.warnings)),
-        warnings=np.array(result.warnings or [""], dtype=str)), static=True)
+        warnings=np.array([w.text for w in result.warnings] or [""], dtype=str),
+        warning_codes=np.array([w.code for w in result.warnings] or [""], dtype=str)),
+        static=True)
     rec.log(P.SUMMARY, rr.TextDocument(summary_markdown(result),
                                        media_type=rr.MediaType.MARKDOWN), static=True)
 
@@ -625,14 +628,14 @@ def summary_markdown(result: Result) -> str:
     lines += [f"- **λ (accelerometer):** {result.whole.lam:.4g} ({how})", ""]
 
     lines += ["## Quality", "", "| figure | before | after |", "|---|---:|---:|"]
-    b, a = q.static_norm_rms_mg
+    b, a = q.static_norm_rms_mg.before, q.static_norm_rms_mg.after
     lines.append(f"| static norm error, block means (RMS, mg) | {_fmt(b, '.4g')} | "
                  f"{_fmt(a, '.4g')} |")
-    b, a = q.sample_norm_rms_mg
+    b, a = q.sample_norm_rms_mg.before, q.sample_norm_rms_mg.after
     lines.append("| static norm error, single samples (RMS, mg; mostly sensor noise) | "
                  f"{_fmt(b, '.4g')} | {_fmt(a, '.4g')} |")
     if q.gravity_angle_rms_deg is not None:
-        b, a = q.gravity_angle_rms_deg
+        b, a = q.gravity_angle_rms_deg.before, q.gravity_angle_rms_deg.after
         lines.append(f"| gravity prediction error (RMS, deg) | {_fmt(b, '.4g')} | "
                      f"{_fmt(a, '.4g')} |")
     lines += [f"- {n}" for n in q.notes]
@@ -670,7 +673,7 @@ def summary_markdown(result: Result) -> str:
                   f"cost {g.report.cost_start:.3g} → {g.report.cost:.3g}", ""]
 
     lines += ["## Warnings", ""]
-    lines += [f"- {w}" for w in result.warnings] or ["none"]
+    lines += [f"- {w.text}" for w in result.warnings] or ["none"]
     lines.append("")
     return "\n".join(lines)
 

@@ -25,13 +25,13 @@ def print_summary(result, written: list[str]) -> None:
     how = "L-curve corner" if result.settings.lam == "auto" else "fixed"
     lines.append(f"lambda          {fmt(result.whole.lam, '.3g')} ({how})")
     lines.append(f"{'':28s}{'before':>10s}{'after':>10s}")
-    lines.append(f"{'static norm error (mg)':28s}{fmt(q.static_norm_rms_mg[0]):>10s}"
-                 f"{fmt(q.static_norm_rms_mg[1]):>10s}")
-    lines.append(f"{'sample norm error (mg)':28s}{fmt(q.sample_norm_rms_mg[0]):>10s}"
-                 f"{fmt(q.sample_norm_rms_mg[1]):>10s}  (single samples: sensor noise)")
+    lines.append(f"{'static norm error (mg)':28s}{fmt(q.static_norm_rms_mg.before):>10s}"
+                 f"{fmt(q.static_norm_rms_mg.after):>10s}")
+    lines.append(f"{'sample norm error (mg)':28s}{fmt(q.sample_norm_rms_mg.before):>10s}"
+                 f"{fmt(q.sample_norm_rms_mg.after):>10s}  (single samples: sensor noise)")
     if q.gravity_angle_rms_deg is not None:
         ga = q.gravity_angle_rms_deg
-        lines.append(f"{'gravity angle (deg)':28s}{fmt(ga[0]):>10s}{fmt(ga[1]):>10s}")
+        lines.append(f"{'gravity angle (deg)':28s}{fmt(ga.before):>10s}{fmt(ga.after):>10s}")
     for seg in result.segments:
         lines.append(f"segment {seg.index}       {seg.t_start:.1f}-{seg.t_end:.1f} s, "
                      f"{seg.blocks[1] - seg.blocks[0]} blocks, {seg.orientations} orientations, "
@@ -47,7 +47,7 @@ def print_summary(result, written: list[str]) -> None:
                          f"({seg.gyro.bias_source})")
     lines.append(f"output          calibrated accelerometer in {cal.acc_unit} (|g| = "
                  f"{cal.g:g})" + (", gyroscope in rad/s" if s.has_gyro else ""))
-    notes = list(result.warnings) + list(q.notes)
+    notes = [w.text for w in result.warnings] + list(q.notes)
     if notes:
         lines.append("warnings:")
         lines += [f"  - {w}" for w in notes]

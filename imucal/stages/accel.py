@@ -12,6 +12,7 @@ from imucal.numerics.lcurve import lcurve_corner
 from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov
 from imucal.numerics.windows import block_means, segment_sums
 from imucal.settings import AccSettings, Settings
+from imucal.warning import RunWarning
 
 TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
 
@@ -60,7 +61,7 @@ class AccFit:
     n_points: int
     n_blocks: int
     sweep: LambdaSweep | None = None  # the L-curve's solutions in raw units (None: fixed lambda)
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[RunWarning] = field(default_factory=list)
 
     def model_for(self, theta_nominal: np.ndarray) -> SensorModel:
         """The raw-unit model of a nominal-frame solution (an L-curve point, an LM step)."""
@@ -262,7 +263,7 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     ell = ellipsoid_start(pts)
     if ell is not None and np.all(ell[3:6] > 0):
         starts["ellipsoid"] = ell
-    warnings: list[str] = []
+    warnings: list[RunWarning] = []
 
     curve = None
     if settings.lam == "auto":
@@ -313,29 +314,35 @@ def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
                             fits[corner].theta})
 
 
-def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal) -> list[str]:
+def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal
+            ) -> list[RunWarning]:
     """Flag the escape routes of the norm cost (method.md §3) instead of returning them."""
-    out = []
+    out: list[RunWarning] = []
     th = report.theta
     if np.any(th[3:6] <= 0):
-        out.append("accelerometer fit reached a non-positive scale: the result is not physical")
+        out.append(RunWarning("acc_scale_not_positive", "accelerometer fit reached a "
+                              "non-positive scale: the result is not physical"))
     elif np.any((th[3:6] < 0.5) | (th[3:6] > 2.0)):
-        out.append(f"accelerometer scales {np.round(th[3:6], 3).tolist()} are far from the "
-                   "nominal 1: check the units and the still blocks")
+        out.append(RunWarning("acc_scale_far", f"accelerometer scales "
+                              f"{np.round(th[3:6], 3).tolist()} are far from the nominal 1: check "
+                              "the units and the still blocks"))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     if np.any(th[6:9] < lo - 0.5) or np.any(th[6:9] > hi + 0.5):
-        out.append("accelerometer bias lies outside the range of the signal: the fit took the "
-                   "'huge sphere' escape route; record more orientations")
+        out.append(RunWarning("acc_bias_outside", "accelerometer bias lies outside the range "
+                              "of the signal: the fit took the 'huge sphere' escape route; record "
+                              "more orientations"))
     if report.cost > report.cost_start * (1 + 1e-9):
-        out.append("accelerometer fit ended with a higher cost than it started from")
+        out.append(RunWarning("acc_cost_rose", "accelerometer fit ended with a higher cost "
+                              "than it started from"))
     weak = undetermined(report.jac, ACC_PARAM_NAMES)
     if weak:
-        out.append(f"the still poses do not determine {', '.join(weak)} (condition number "
-                   f"{report.jac_cond:.3g}): the regularisation holds them near nominal; record "
-                   "poses in more directions")
+        out.append(RunWarning("acc_undetermined", f"the still poses do not determine "
+                              f"{', '.join(weak)} (condition number {report.jac_cond:.3g}): the "
+                              "regularisation holds them near nominal; record poses in more "
+                              "directions"))
     if np.max(np.abs(th[:3])) > 0.2:
-        out.append(f"accelerometer misalignment angles {np.round(th[:3], 3).tolist()} rad are "
-                   "implausibly large")
+        out.append(RunWarning("acc_misalignment_large", f"accelerometer misalignment angles "
+                              f"{np.round(th[:3], 3).tolist()} rad are implausibly large"))
     return out
 
 

@@ -21,6 +21,7 @@ from imucal.numerics.rk4 import SLAB, StepLayout, calibrator, mul, product_rows
 from imucal.numerics.windows import samples_within, segment_sums
 from imucal.settings import GyroSettings, Settings
 from imucal.stages.saturation import blocks_with
+from imucal.warning import RunWarning
 
 
 def transition_samples(t: np.ndarray, block_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -192,7 +193,7 @@ class GyroFit:
     rotation_angle: np.ndarray  # (K,) integrated rotation angle, rad
     static_bias: np.ndarray  # (3,) the bias measured on the still blocks, raw units
     excluded: np.ndarray  # (K,) bool: transitions left out of the fit (saturated samples)
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[RunWarning] = field(default_factory=list)
 
     def model_for(self, theta: np.ndarray) -> SensorModel:
         """The raw-unit model of any parameter vector of the fit (a step of its trace): scales
@@ -407,7 +408,7 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         raise ImucalError(f"{len(block_times)} static block(s): the gyroscope needs at least two "
                           "still poses with a rotation between them", source="gyroscope",
                           field="static blocks")
-    warnings: list[str] = []
+    warnings: list[RunWarning] = []
     u = gravity / np.linalg.norm(gravity, axis=1, keepdims=True)
     bias, bias_source = static_bias(w_raw, t, block_times, settings.bias)
     tr_all = Transitions(w_raw, t, block_times)
@@ -418,9 +419,10 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
             raise ImucalError(f"all {len(excluded)} rotations between still poses pass through "
                               "saturated gyroscope samples (flat at the sensor's limit): turn "
                               "more slowly", source="gyroscope", field="rotations")
-        warnings.append(f"{int(excluded.sum())} of {len(excluded)} rotations between still "
-                        "poses pass through saturated gyroscope samples and are left out of "
-                        "the gyroscope fit")
+        warnings.append(RunWarning("gyro_rotations_saturated", f"{int(excluded.sum())} of "
+                                   f"{len(excluded)} rotations between still poses pass through "
+                                   "saturated gyroscope samples and are left out of the "
+                                   "gyroscope fit"))
     keep = ~excluded
     tr = tr_all if keep.all() else Transitions(w_raw, t, block_times, keep)
     fit_prev, fit_meas = u[:-1][keep], u[1:][keep]
@@ -476,24 +478,30 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
 
     if np.any(model.K <= 0):
-        warnings.append("gyroscope fit reached a non-positive scale: the result is not physical")
+        warnings.append(RunWarning("gyro_scale_not_positive", "gyroscope fit reached a "
+                                   "non-positive scale: the result is not physical"))
     elif np.any(np.abs(report.theta[6:9] - 1) > 0.5):
-        warnings.append(f"gyroscope scales {np.round(report.theta[6:9], 3).tolist()} (nominal "
-                        "frame) are far from 1: check the gyroscope unit")
+        warnings.append(RunWarning("gyro_scale_far", f"gyroscope scales "
+                                   f"{np.round(report.theta[6:9], 3).tolist()} (nominal frame) "
+                                   "are far from 1: check the gyroscope unit"))
     if report.cost > report.cost_start * (1 + 1e-9):
-        warnings.append("gyroscope fit ended with a higher cost than it started from")
+        warnings.append(RunWarning("gyro_cost_rose", "gyroscope fit ended with a higher cost "
+                                   "than it started from"))
     per_step = tr_all.max_step_angle(model)
     if per_step > np.radians(20.0):
-        warnings.append(f"rotations too fast for the gyroscope's sample rate: up to "
-                        f"{np.degrees(per_step):.0f} degrees between two samples; the "
-                        "integration (M5) loses accuracy above about 20: turn more slowly")
+        warnings.append(RunWarning("gyro_rotations_fast", f"rotations too fast for the "
+                                   f"gyroscope's sample rate: up to {np.degrees(per_step):.0f} "
+                                   "degrees between two samples; the integration (M5) loses "
+                                   "accuracy above about 20: turn more slowly"))
     small = np.count_nonzero(angle < 10.0)
     if small:
-        warnings.append(f"{small} of {len(angle)} rotations between still poses are under 10 "
-                        "degrees and carry little information about the gyroscope")
+        warnings.append(RunWarning("gyro_rotations_small", f"{small} of {len(angle)} rotations "
+                                   "between still poses are under 10 degrees and carry little "
+                                   "information about the gyroscope"))
     if len(fit_meas) < 3:
-        warnings.append(f"only {len(fit_meas)} rotations between still poses: the 9 gyroscope "
-                        "parameters are barely determined; record more poses")
+        warnings.append(RunWarning("gyro_few_rotations", f"only {len(fit_meas)} rotations "
+                                   "between still poses: the 9 gyroscope parameters are barely "
+                                   "determined; record more poses"))
     return GyroFit(model=model, std=std, bias_source=bias_source, nominal_scale=s0,
                    nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
                    u_meas=u_meas, u_pred_before=before, u_pred_after=after,
