@@ -104,7 +104,6 @@ entities only when lambda was chosen by the L-curve (not fixed).
 from __future__ import annotations
 
 import json
-import math
 import os
 import uuid
 from collections.abc import Iterator
@@ -117,6 +116,7 @@ import rerun as rr
 from imucal.io.atomic import atomic_path, check_output_path
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, acc_theta, gyro_theta
 from imucal.numerics.windows import samples_within
+from imucal.report import Report, fmt, report
 
 from . import paths as P
 from .decimate import detail_envelope, envelope
@@ -604,76 +604,31 @@ def _log_results(result: Result, rec: rr.RecordingStream) -> None:
                                        media_type=rr.MediaType.MARKDOWN), static=True)
 
 
-def _fmt(x: float | None, spec: str = ".6g") -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "–"
-    return format(float(x), spec)
-
-
 def summary_markdown(result: Result) -> str:
     """The calibration as a person reads it: quality first, then each segment's parameters."""
-    s, q = result.session, result.quality
-    unit, raw = result.calibration.acc_unit, s.acc_unit
-    lines = [f"# IMU calibration: {Path(s.source).name}", ""]
-    rate = f"{s.acc_rate:.4g} Hz"
-    gyro = (f"gyroscope {len(s.gyro)} samples at {s.gyro_rate:.4g} Hz ({s.gyro_unit})"
-            if s.has_gyro else "no gyroscope")
-    lines += [f"- **Session:** {s.duration:.1f} s; accelerometer {len(s.acc)} samples at {rate} "
-              f"({raw}); {gyro}"]
-    lines += [f"- **Static blocks:** {len(result.block_times)}; **segments:** "
-              f"{len(result.segments)} ({result.grouping.mode})"]
-    lc = result.whole.lcurve
-    how = (f"L-curve corner, point {lc.corner + 1} of {len(lc.lambdas)}" if lc is not None
-           else "fixed")
-    lines += [f"- **λ (accelerometer):** {result.whole.lam:.4g} ({how})", ""]
+    return report_markdown(report(result))
 
-    lines += ["## Quality", "", "| figure | before | after |", "|---|---:|---:|"]
-    b, a = q.static_norm_rms_mg.before, q.static_norm_rms_mg.after
-    lines.append(f"| static norm error, block means (RMS, mg) | {_fmt(b, '.4g')} | "
-                 f"{_fmt(a, '.4g')} |")
-    b, a = q.sample_norm_rms_mg.before, q.sample_norm_rms_mg.after
-    lines.append("| static norm error, single samples (RMS, mg; mostly sensor noise) | "
-                 f"{_fmt(b, '.4g')} | {_fmt(a, '.4g')} |")
-    if q.gravity_angle_rms_deg is not None:
-        b, a = q.gravity_angle_rms_deg.before, q.gravity_angle_rms_deg.after
-        lines.append(f"| gravity prediction error (RMS, deg) | {_fmt(b, '.4g')} | "
-                     f"{_fmt(a, '.4g')} |")
-    lines += [f"- {n}" for n in q.notes]
+
+def report_markdown(rep: Report) -> str:
+    lines = [f"# IMU calibration: {rep.title}", ""]
+    lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.overview]
+    lines += ["", "## Quality", "", "| figure | before | after |", "|---|---:|---:|"]
+    for row in rep.quality:
+        lines.append(f"| {row.label} — {row.note} | {fmt(row.figure.before, '.4g')} | "
+                     f"{fmt(row.figure.after, '.4g')} |")
+    lines += [f"- {n}" for n in rep.quality_notes]
     lines.append("")
-
-    for seg in result.segments:
-        a = seg.acc
-        lines += [f"## Segment {seg.index}: {seg.t_start:.2f}–{seg.t_end:.2f} s, "
-                  f"{seg.blocks[1] - seg.blocks[0]} blocks, {seg.orientations} orientations", ""]
-        lines += [f"### Accelerometer: a = T K (a_raw − b), a in {unit}", "",
-                  "| parameter | value | std. error |", "|---|---:|---:|"]
-        params = acc_theta(a.model)
-        units = ["rad"] * 3 + [f"{unit}/{raw}"] * 3 + [raw] * 3
-        for n, v, e, u in zip(ACC_PARAM_NAMES, params, a.std, units):
-            lines.append(f"| {n} ({u}) | {_fmt(v)} | {_fmt(e, '.2g')} |")
-        starts = ", ".join(f"{k} {v:.3g}" for k, v in a.starts.items())
-        lines += ["", f"λ = {a.lam:.4g}; LM from the *{a.report.start_name}* start (costs reached: "
-                  f"{starts}); cost {a.report.cost_start:.3g} → {a.report.cost:.3g}; "
-                  f"{a.n_points} points from {a.n_blocks} blocks", ""]
-        g = seg.gyro
-        if g is None:
-            continue
-        graw = s.gyro_unit
-        lines += ["### Gyroscope: w = T_g K_g (w_raw − b_g), w in rad/s", "",
-                  "| parameter | value | std. error |", "|---|---:|---:|"]
-        params = gyro_theta(g.model)
-        units = ["rad"] * 6 + [f"rad/s per {graw}" if graw != "rad/s" else ""] * 3
-        for n, v, e, u in zip(GYRO_PARAM_NAMES, params, g.std, units):
-            label = f"{n} ({u})" if u else n
-            lines.append(f"| {label} | {_fmt(v)} | {_fmt(e, '.2g')} |")
-        bstd = g.std[9:12] if len(g.std) > 9 else [None] * 3
-        for n, v, e in zip(("b_x", "b_y", "b_z"), g.model.b, bstd):
-            lines.append(f"| {n} ({graw}) | {_fmt(v)} | {_fmt(e, '.2g')} |")
-        lines += ["", f"bias: {g.bias_source}; λ = {g.lam:.3g}; {len(g.u_meas)} rotations; "
-                  f"cost {g.report.cost_start:.3g} → {g.report.cost:.3g}", ""]
-
+    for seg in rep.segments:
+        lines += [f"## Segment {seg.index}: {seg.span}", ""]
+        for fit in seg.fits:
+            lines += [f"### {fit.sensor.capitalize()}: {fit.model}", "",
+                      "| parameter | value | std. error |", "|---|---:|---:|"]
+            for p in fit.params:
+                label = f"{p.name} ({p.unit})" if p.unit else p.name
+                lines.append(f"| {label} | {fmt(p.value)} | {fmt(p.std, '.2g')} |")
+            lines += ["", fit.details, ""]
     lines += ["## Warnings", ""]
-    lines += [f"- {w.text}" for w in result.warnings] or ["none"]
+    lines += [f"- {w.text}" for w in rep.warnings] or ["none"]
     lines.append("")
     return "\n".join(lines)
 
