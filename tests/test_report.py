@@ -10,7 +10,7 @@ import imucal
 from imucal.cli.summary import summary_lines
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES
 from imucal.report import fmt, report
-from viewer.recording import report_markdown
+from viewer.summary import report_markdown
 
 
 @pytest.fixture(scope="module")
