@@ -23,6 +23,7 @@ from imucal.stages.group import group_blocks
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.quality import quality_figures
 from imucal.stages.saturation import blocks_with, saturated_mask
+from imucal.warning import RunWarning
 
 
 def resolve_g(session: Session, g: float | None) -> tuple[float, float, str]:
@@ -45,25 +46,28 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     except TypeError as e:
         raise ImucalError(str(e), source="settings") from None
     validate(session)
-    warnings: list[str] = list(session.notes)
+    # How the input was read (units guessed, gaps bridged...): the loader's notes.
+    warnings = [RunWarning("input", note) for note in session.notes]
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 
     det = detect_static(session.acc, session.t_acc, settings.detect, source=session.source)
-    if det.note:
-        warnings.append(det.note)
+    if det.note:  # the initial still interval was moved (method.md §1)
+        warnings.append(RunWarning("init_interval_moved", det.note))
     det, excluded = _drop_saturated(session.acc, det)
     if excluded:
-        warnings.append(f"excluded {excluded} static block(s) holding saturated accelerometer "
-                        "samples (flat at the sensor's limit)")
+        warnings.append(RunWarning("acc_saturated_blocks", f"excluded {excluded} static block(s) "
+                                   "holding saturated accelerometer samples (flat at the "
+                                   "sensor's limit)"))
     _check_blocks(session, det, settings)
     gyro_sat = None
     if session.has_gyro:
         gyro_sat = saturated_mask(session.gyro)
         if gyro_sat.any():
             first = float(session.t_gyro[np.argmax(gyro_sat)])
-            warnings.append(f"the gyroscope is saturated (flat at its limit) in "
-                            f"{int(gyro_sat.sum())} samples, first at t = {first:.2f} s: "
-                            "rotations through them are under-measured; turn more slowly")
+            warnings.append(RunWarning("gyro_saturated", f"the gyroscope is saturated (flat at "
+                                       f"its limit) in {int(gyro_sat.sum())} samples, first at "
+                                       f"t = {first:.2f} s: rotations through them are "
+                                       "under-measured; turn more slowly"))
     block_times = np.column_stack([session.t_acc[det.blocks[:, 0]],
                                    session.t_acc[det.blocks[:, 1] - 1]])
     if session.init_still_s is not None:  # a hint the file gave; only reported for now (§1)
@@ -102,14 +106,16 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                       t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,
                       orientations=n_orient)
         segments.append(seg)
-        prefix = f"segment {i}: " if len(grouping.segments) > 1 else ""
-        warnings += [prefix + w for w in acc_fit.warnings]
+        # A warning names its segment only when there are several: one segment is the session.
+        where = i if len(grouping.segments) > 1 else None
+        warnings += [w.in_segment(where) for w in acc_fit.warnings]
         if gyro_fit is not None:
-            warnings += [prefix + w for w in gyro_fit.warnings]
+            warnings += [w.in_segment(where) for w in gyro_fit.warnings]
         if n_orient < 9:
-            warnings.append(f"{prefix}only {n_orient} distinct still orientations; 9 or more are "
-                            "needed to determine the accelerometer's 9 parameters without the "
-                            "prior (the regularisation holds the rest at nominal)")
+            warnings.append(RunWarning(
+                "few_orientations", f"only {n_orient} distinct still orientations; 9 or more are "
+                "needed to determine the accelerometer's 9 parameters without the prior (the "
+                "regularisation holds the rest at nominal)", where))
 
     calibration = Calibration(
         segments=tuple(SegmentModels(t_start=s.t_start, t_end=s.t_end, acc=s.acc.model,

@@ -48,9 +48,11 @@ def test_standard_errors_are_honest(runs):
 
 def test_quality_figures_improve(runs):
     for r, _ in runs:
-        before, after = r.quality.static_norm_rms_mg
+        fig = r.quality.static_norm_rms_mg
+        before, after = fig.before, fig.after
         assert after < 0.5 and before > 10 * after
-        g_before, g_after = r.quality.gravity_angle_rms_deg
+        fig = r.quality.gravity_angle_rms_deg
+        g_before, g_after = fig.before, fig.after
         assert g_after < 0.1 and g_before > 10 * g_after
 
 
@@ -80,9 +82,9 @@ def test_raw_counts_need_no_initial_guess():
     assert np.all(np.abs(rel_k) < 2e-3)
     assert np.all(np.abs(seg.acc.model.b - truth.acc.b) < 2.0)  # counts
     assert np.all(np.abs(seg.gyro.model.K / truth.gyro.K - 1) < 5e-3)
-    assert r.quality.static_norm_rms_mg[0] is None  # no "before" in raw counts
-    assert r.quality.gravity_angle_rms_deg[0] is None
-    assert r.quality.static_norm_rms_mg[1] < 0.5
+    assert r.quality.static_norm_rms_mg.before is None  # no "before" in raw counts
+    assert r.quality.gravity_angle_rms_deg.before is None
+    assert r.quality.static_norm_rms_mg.after < 0.5
 
 
 def test_accelerometer_in_m_s2_and_g_value():
@@ -111,7 +113,7 @@ def test_gyroscope_in_deg_s(tmp_path, via_file):
     g = r.segments[0].gyro
     z = np.abs(gyro_theta(g.model) - gyro_theta(truth.gyro)) / g.std
     assert z.max() < 4, z
-    assert r.quality.gravity_angle_rms_deg[1] < 0.1
+    assert r.quality.gravity_angle_rms_deg.after < 0.1
 
 
 def test_deterministic():

@@ -55,7 +55,7 @@ def test_detector_on_odd_sessions(noise, poses, nan_at):
     except imucal.ImucalError as e:
         assert "\n" not in str(e)
     else:
-        assert np.isfinite(r.quality.static_norm_rms_mg[1])
+        assert np.isfinite(r.quality.static_norm_rms_mg.after)
 
 
 def test_all_static_and_no_static():

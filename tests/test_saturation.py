@@ -39,7 +39,7 @@ def test_rotations_through_saturated_gyro_samples_are_left_out():
     g = result.segments[0].gyro
     n_out = int(g.excluded.sum())
     assert 1 <= n_out < len(g.excluded) // 2
-    assert any(f"{n_out} of {len(g.excluded)} rotations" in w and "left out" in w
+    assert any(f"{n_out} of {len(g.excluded)} rotations" in w.message and "left out" in w.message
                for w in result.warnings), result.warnings
     # The left-out transitions are exactly those that contain a flat sample.
     t0, t1 = g.t_transition[:, 0], g.t_transition[:, 1]
@@ -62,7 +62,7 @@ def test_rotations_through_saturated_gyro_samples_are_left_out():
     # The quality figure leaves them out too; the recording still shows them.
     assert len(g.angle_after) == len(g.excluded)
     rms_kept = float(np.sqrt(np.mean(g.angle_after[~g.excluded] ** 2)))
-    assert result.quality.gravity_angle_rms_deg[1] == rms_kept
+    assert result.quality.gravity_angle_rms_deg.after == rms_kept
 
 
 def test_saturated_still_blocks_are_excluded():
@@ -76,8 +76,8 @@ def test_saturated_still_blocks_are_excluded():
     acc[:, 2] = np.minimum(z, limit)
     clipped = dataclasses.replace(session, acc=acc)
     result = imucal.calibrate(clipped, single_segment=True)
-    msg = [w for w in result.warnings if "saturated accelerometer" in w]
+    msg = [w for w in result.warnings if "saturated accelerometer" in w.message]
     assert msg, result.warnings
-    n_ex = int(msg[0].split()[1])
+    n_ex = int(msg[0].message.split()[1])
     assert n_ex >= 1 and len(result.detection.blocks) == n0 - n_ex
-    assert result.quality.static_norm_rms_mg[1] < 2.0
+    assert result.quality.static_norm_rms_mg.after < 2.0

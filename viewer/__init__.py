@@ -6,6 +6,10 @@
 - :mod:`viewer.app` — ``view(target, save=..., web=..., port=...)`` and ``main()``.
 - :mod:`viewer.readback` — the numbers back out of an ``.rrd`` (scripts, tests).
 - :mod:`viewer.decimate` — the min/max envelope used for long per-axis signals.
+- one module per tab maps the core's arrays onto entities: :mod:`viewer.signals`,
+  :mod:`viewer.gravity`, :mod:`viewer.lcurve`, :mod:`viewer.optimiser`, :mod:`viewer.summary`
+  (the markdown summary is :mod:`imucal.report`, the CLI's summary too); helpers in
+  :mod:`viewer.columns`. The viewer computes nothing the core should.
 
 The core (``imucal``) never imports this package; importing it costs nothing until a
 recording is written (``import rerun`` happens there).

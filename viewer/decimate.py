@@ -16,6 +16,23 @@ import numpy as np
 
 from imucal.numerics.windows import runs_of_true
 
+DECIMATE_ABOVE = 200_000  # signals longer than this are drawn as an envelope
+ENVELOPE_ROWS = 100_000  # rows of that envelope, at most
+
+
+def for_display(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A per-axis signal as it is logged: itself, or its envelope past ``DECIMATE_ABOVE``."""
+    return envelope(t, x, ENVELOPE_ROWS) if len(t) > DECIMATE_ABOVE else (t, x)
+
+
+def magnitudes_for_display(t: np.ndarray, v: np.ndarray, still: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """A long signal's magnitudes: full rate in the still blocks, where the calibration is
+    judged to the milli-g, and a min/max envelope in between, where only the swings matter."""
+    if len(t) <= DECIMATE_ABOVE:
+        return t, v
+    return detail_envelope(t, v, still, ENVELOPE_ROWS)
+
 
 def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, np.ndarray]:
     """``(t, x)`` itself when it has at most ``max_rows`` rows, else its min/max envelope.

@@ -1,55 +1,46 @@
-"""The lines ``imucal calibrate`` prints about a run."""
+"""The lines ``imucal calibrate`` prints about a run: :mod:`imucal.report` as plain text."""
 
 from __future__ import annotations
 
-from imucal.cli.outputs import fmt, fmt_rate, fmt_vec
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from imucal.report import Report
+    from imucal.result import Result
+
+SHORT = {"accelerometer": "acc", "gyroscope": "gyro"}
 
 
-def print_summary(result, written: list[str]) -> None:
-    from imucal.models import acc_theta, gyro_theta
+def summary_lines(rep: Report) -> list[str]:
+    from imucal.report import fmt
 
-    s = result.session
-    q = result.quality
-    cal = result.calibration
-    acc_raw = s.acc_unit
-    gyro_raw = s.gyro_unit if s.has_gyro else None
-    lines = []
-    gyro_txt = (f"gyroscope {len(s.gyro)} samples at {fmt_rate(s.gyro_rate)} ({gyro_raw})"
-                if s.has_gyro else "no gyroscope")
-    lines.append(f"session         {s.source}: {s.duration:.1f} s, accelerometer {len(s.acc)} "
-                 f"samples at {fmt_rate(s.acc_rate)} ({acc_raw}), {gyro_txt}")
-    det = result.detection
-    lines.append(f"static blocks   {len(det.blocks)} (window {det.window}, min length "
-                 f"{det.min_len} samples)")
-    lines.append(f"segments        {len(result.segments)} ({result.grouping.mode})")
-    how = "L-curve corner" if result.settings.lam == "auto" else "fixed"
-    lines.append(f"lambda          {fmt(result.whole.lam, '.3g')} ({how})")
+    lines = [f"{line.label:16s}{line.text}" for line in rep.overview]
     lines.append(f"{'':28s}{'before':>10s}{'after':>10s}")
-    lines.append(f"{'static norm error (mg)':28s}{fmt(q.static_norm_rms_mg[0]):>10s}"
-                 f"{fmt(q.static_norm_rms_mg[1]):>10s}")
-    lines.append(f"{'sample norm error (mg)':28s}{fmt(q.sample_norm_rms_mg[0]):>10s}"
-                 f"{fmt(q.sample_norm_rms_mg[1]):>10s}  (single samples: sensor noise)")
-    if q.gravity_angle_rms_deg is not None:
-        ga = q.gravity_angle_rms_deg
-        lines.append(f"{'gravity angle (deg)':28s}{fmt(ga[0]):>10s}{fmt(ga[1]):>10s}")
-    for seg in result.segments:
-        lines.append(f"segment {seg.index}       {seg.t_start:.1f}-{seg.t_end:.1f} s, "
-                     f"{seg.blocks[1] - seg.blocks[0]} blocks, {seg.orientations} orientations, "
-                     f"lambda {fmt(seg.acc.lam)}, start {seg.acc.report.start_name}")
-        th = acc_theta(seg.acc.model)
-        lines.append(f"  acc   scale {fmt_vec(th[3:6])}  "
-                     f"misalign(yz zy zx) {fmt_vec(th[0:3], '.3g')}"
-                     f"  bias {fmt_vec(th[6:9])} {acc_raw}")
-        if seg.gyro is not None:
-            gt = gyro_theta(seg.gyro.model)
-            lines.append(f"  gyro  scale {fmt_vec(gt[6:9])}  misalign {fmt_vec(gt[0:6], '.3g')}"
-                         f"  bias {fmt_vec(seg.gyro.model.b)} {gyro_raw} "
-                         f"({seg.gyro.bias_source})")
-    lines.append(f"output          calibrated accelerometer in {cal.acc_unit} (|g| = "
-                 f"{cal.g:g})" + (", gyroscope in rad/s" if s.has_gyro else ""))
-    notes = list(result.warnings) + list(q.notes)
+    for row in rep.quality:
+        lines.append(f"{row.label:28s}{fmt(row.figure.before, '.3g'):>10s}"
+                     f"{fmt(row.figure.after, '.3g'):>10s}  ({row.note})")
+    for seg in rep.segments:
+        lines.append(f"{'segment ' + str(seg.index):16s}{seg.span}")
+        for fit in seg.fits:
+            mis = " ".join(n.split("_")[1] for n in fit.names("misalignment"))
+            lines.append(f"  {SHORT[fit.sensor]:6s}scale {_vec(fit.values('scale'))}  "
+                         f"misalign({mis}) {_vec(fit.values('misalignment'), '.3g')}  "
+                         f"bias {_vec(fit.values('bias'))} {fit.raw_unit}")
+            lines.append(f"{'':8s}{fit.details}")
+    notes = [w.text for w in rep.warnings] + list(rep.quality_notes)
     if notes:
         lines.append("warnings:")
-        lines += [f"  - {w}" for w in notes]
-    lines += [f"wrote {w}" for w in written]
-    print("\n".join(lines))
+        lines += [f"  - {n}" for n in notes]
+    return lines
+
+
+def _vec(values, spec: str = ".6g") -> str:
+    from imucal.report import fmt
+
+    return " ".join(fmt(v, spec) for v in values)
+
+
+def print_summary(result: Result, written: list[str]) -> None:
+    from imucal.report import report
+
+    print("\n".join(summary_lines(report(result)) + [f"wrote {w}" for w in written]))

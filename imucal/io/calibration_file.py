@@ -21,6 +21,7 @@ from imucal.stages.apply import Calibration, SegmentModels
 
 if TYPE_CHECKING:
     from imucal.result import Result
+    from imucal.stages.quality import BeforeAfter
 
 FORMAT = "imucal-calibration"
 FORMAT_VERSION = 1
@@ -51,6 +52,10 @@ def _fl(a: Any) -> Any:
     if arr.ndim == 0:
         return _f(arr)
     return [_fl(v) for v in arr]
+
+
+def _before_after(x: BeforeAfter) -> dict:
+    return {"before": _f(x.before), "after": _f(x.after)}
 
 
 def _model_dict(model: SensorModel, std: np.ndarray, names: tuple[str, ...]) -> dict:
@@ -105,16 +110,13 @@ def result_to_dict(result: Result) -> dict:
         "lcurve": lcurve,
         "lambda": _f(result.whole.lam),
         "quality": {
-            "static_norm_rms_mg": {"before": _f(q.static_norm_rms_mg[0]),
-                                   "after": _f(q.static_norm_rms_mg[1])},
-            "sample_norm_rms_mg": {"before": _f(q.sample_norm_rms_mg[0]),
-                                   "after": _f(q.sample_norm_rms_mg[1]),
-                                   "note": "single samples: dominated by sensor noise"},
-            "gravity_angle_rms_deg": None if ga is None else {"before": _f(ga[0]),
-                                                              "after": _f(ga[1])},
+            "static_norm_rms_mg": _before_after(q.static_norm_rms_mg),
+            "sample_norm_rms_mg": _before_after(q.sample_norm_rms_mg) | {
+                "note": "single samples: dominated by sensor noise"},
+            "gravity_angle_rms_deg": None if ga is None else _before_after(ga),
             "notes": list(q.notes),
         },
-        "warnings": list(result.warnings),
+        "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
     }
 
 

@@ -159,3 +159,23 @@ def segment_sums(x: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndar
         idx = idx[:-1]
     out[keep] = np.add.reduceat(x, idx, axis=0)[0::2]
     return out
+
+
+def samples_within(t: np.ndarray, intervals: np.ndarray) -> np.ndarray:
+    """[start, end) index pairs of the samples of a sorted time axis ``t`` inside each closed
+    interval ``[t0, t1]`` of ``intervals`` (B, 2), ends included: an interval given by the
+    times of its first and last sample gives back exactly those samples on the same clock."""
+    intervals = np.asarray(intervals, dtype=float).reshape(-1, 2)
+    lo = np.searchsorted(t, intervals[:, 0], side="left")
+    hi = np.searchsorted(t, intervals[:, 1], side="right")
+    return np.column_stack([lo, np.maximum(hi, lo)]).astype(np.int64)
+
+
+def mask_of_runs(runs: np.ndarray, n: int) -> np.ndarray:
+    """Boolean mask of length ``n``, True inside the [start, end) runs: the inverse of
+    :func:`runs_of_true` (one cumulative sum, no loop over runs)."""
+    runs = np.asarray(runs, np.int64).reshape(-1, 2)
+    edges = np.zeros(n + 1, np.int64)
+    np.add.at(edges, np.clip(runs[:, 0], 0, n), 1)
+    np.add.at(edges, np.clip(runs[:, 1], 0, n), -1)
+    return np.cumsum(edges[:-1]) > 0

@@ -7,11 +7,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T
+from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T, acc_theta
 from imucal.numerics.lcurve import lcurve_corner
 from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov
-from imucal.numerics.windows import segment_sums
+from imucal.numerics.windows import block_means, segment_sums
 from imucal.settings import AccSettings, Settings
+from imucal.warning import RunWarning
 
 TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
 
@@ -59,11 +60,29 @@ class AccFit:
     lcurve: LCurve | None
     n_points: int
     n_blocks: int
-    warnings: list[str] = field(default_factory=list)
+    sweep: LambdaSweep | None = None  # the L-curve's solutions in raw units (None: fixed lambda)
+    warnings: list[RunWarning] = field(default_factory=list)
 
     def model_for(self, theta_nominal: np.ndarray) -> SensorModel:
         """The raw-unit model of a nominal-frame solution (an L-curve point, an LM step)."""
         return to_raw_model(theta_nominal, self.nominal, self.g_out)
+
+    @property
+    def params(self) -> np.ndarray:
+        """(9,) the solution's raw-unit parameters, in ``ACC_PARAM_NAMES`` order."""
+        return acc_theta(self.model)
+
+    @property
+    def trace_params(self) -> np.ndarray:
+        """(I, 9) raw-unit parameters at each accepted step of the fit (``report.trace_theta``,
+        what the optimiser's report records), in ``ACC_PARAM_NAMES`` order."""
+        return raw_params(self.report.trace_theta, self.nominal, self.g_out)
+
+    def nominal_norm(self, acc_raw: np.ndarray) -> np.ndarray:
+        """``|a_raw|`` through the nominal frame, in the calibrated unit: what the sensor reads
+        before calibration (the raw signal itself for input in g or m/s^2; offset and scale of
+        the sphere fit for raw counts), to set beside the calibrated magnitude."""
+        return np.linalg.norm(self.nominal.to_nominal(acc_raw), axis=1) * self.g_out
 
 
 def to_raw_model(theta: np.ndarray, nominal: Nominal, g_out: float) -> SensorModel:
@@ -244,7 +263,7 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     ell = ellipsoid_start(pts)
     if ell is not None and np.all(ell[3:6] > 0):
         starts["ellipsoid"] = ell
-    warnings: list[str] = []
+    warnings: list[RunWarning] = []
 
     curve = None
     if settings.lam == "auto":
@@ -264,9 +283,11 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     d = np.r_[np.ones(3), np.full(3, k_scale), np.full(3, nominal.scale)]
     cov = report.cov * np.outer(d, d)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    sweep = None if curve is None else lambda_sweep(curve, nominal, g_out,
+                                                    block_means(acc, blocks))
     return AccFit(model=model, std=std, cov=cov, theta_nominal=theta, nominal=nominal, g_out=g_out,
                   lam=lam, report=report, starts=start_costs, lcurve=curve,
-                  n_points=len(pts), n_blocks=len(blocks), warnings=warnings)
+                  n_points=len(pts), n_blocks=len(blocks), sweep=sweep, warnings=warnings)
 
 
 def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
@@ -293,29 +314,35 @@ def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
                             fits[corner].theta})
 
 
-def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal) -> list[str]:
+def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal
+            ) -> list[RunWarning]:
     """Flag the escape routes of the norm cost (method.md §3) instead of returning them."""
-    out = []
+    out: list[RunWarning] = []
     th = report.theta
     if np.any(th[3:6] <= 0):
-        out.append("accelerometer fit reached a non-positive scale: the result is not physical")
+        out.append(RunWarning("acc_scale_not_positive", "accelerometer fit reached a "
+                              "non-positive scale: the result is not physical"))
     elif np.any((th[3:6] < 0.5) | (th[3:6] > 2.0)):
-        out.append(f"accelerometer scales {np.round(th[3:6], 3).tolist()} are far from the "
-                   "nominal 1: check the units and the still blocks")
+        out.append(RunWarning("acc_scale_far", f"accelerometer scales "
+                              f"{np.round(th[3:6], 3).tolist()} are far from the nominal 1: check "
+                              "the units and the still blocks"))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     if np.any(th[6:9] < lo - 0.5) or np.any(th[6:9] > hi + 0.5):
-        out.append("accelerometer bias lies outside the range of the signal: the fit took the "
-                   "'huge sphere' escape route; record more orientations")
+        out.append(RunWarning("acc_bias_outside", "accelerometer bias lies outside the range "
+                              "of the signal: the fit took the 'huge sphere' escape route; record "
+                              "more orientations"))
     if report.cost > report.cost_start * (1 + 1e-9):
-        out.append("accelerometer fit ended with a higher cost than it started from")
+        out.append(RunWarning("acc_cost_rose", "accelerometer fit ended with a higher cost "
+                              "than it started from"))
     weak = undetermined(report.jac, ACC_PARAM_NAMES)
     if weak:
-        out.append(f"the still poses do not determine {', '.join(weak)} (condition number "
-                   f"{report.jac_cond:.3g}): the regularisation holds them near nominal; record "
-                   "poses in more directions")
+        out.append(RunWarning("acc_undetermined", f"the still poses do not determine "
+                              f"{', '.join(weak)} (condition number {report.jac_cond:.3g}): the "
+                              "regularisation holds them near nominal; record poses in more "
+                              "directions"))
     if np.max(np.abs(th[:3])) > 0.2:
-        out.append(f"accelerometer misalignment angles {np.round(th[:3], 3).tolist()} rad are "
-                   "implausibly large")
+        out.append(RunWarning("acc_misalignment_large", f"accelerometer misalignment angles "
+                              f"{np.round(th[:3], 3).tolist()} rad are implausibly large"))
     return out
 
 
@@ -367,3 +394,39 @@ def undetermined(J: np.ndarray, names: tuple[str, ...], rel: float = 1e-3) -> li
                 if names[j] not in weak:
                     weak.append(names[j])
     return weak
+
+
+@dataclass(frozen=True)
+class LambdaSweep:
+    """What each lambda of the L-curve would have given (thesis ch. 5): its solution in raw
+    units and the error it leaves on the still blocks, the figure the corner is judged by."""
+
+    params: np.ndarray  # (L, 9) raw-unit parameters at each of LCurve.lambdas (ACC_PARAM_NAMES)
+    block_norm_error_mg: np.ndarray  # (L, B) |mean a| / |g| - 1 of each still block, mg
+
+    @property
+    def static_norm_rms_mg(self) -> np.ndarray:
+        """(L,) RMS over the still blocks: the quality figure (method.md §5) at each lambda."""
+        return np.sqrt(np.mean(np.square(self.block_norm_error_mg), axis=1))
+
+    @property
+    def static_norm_max_mg(self) -> np.ndarray:
+        """(L,) the largest block error in absolute value at each lambda."""
+        return np.max(np.abs(self.block_norm_error_mg), axis=1)
+
+
+def raw_params(thetas: np.ndarray, nominal: Nominal, g_out: float) -> np.ndarray:
+    """(k, 9) raw-unit parameters of nominal-frame solutions (rows of ``thetas``)."""
+    return np.array([acc_theta(to_raw_model(th, nominal, g_out)) for th in thetas]).reshape(-1, 9)
+
+
+def lambda_sweep(curve: LCurve, nominal: Nominal, g_out: float, means_raw: np.ndarray
+                 ) -> LambdaSweep:
+    """The L-curve's solutions in raw units, each applied to the still blocks' raw means: the
+    model is affine, so calibrating a block's mean equals averaging its calibrated samples."""
+    errors = np.empty((len(curve.thetas), len(means_raw)))
+    for i, th in enumerate(curve.thetas):
+        a = to_raw_model(th, nominal, g_out).apply(means_raw)
+        errors[i] = (np.linalg.norm(a, axis=1) / g_out - 1.0) * 1e3
+    return LambdaSweep(params=raw_params(curve.thetas, nominal, g_out),
+                       block_norm_error_mg=errors)

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from imucal.errors import ImucalError
-from imucal.models import GYRO_THETA0, SensorModel, gyro_T
+from imucal.models import GYRO_PARAM_NAMES, GYRO_THETA0, SensorModel, gyro_T, gyro_theta
 from imucal.numerics.least_squares import (
     FactoredCov,
     FitReport,
@@ -19,9 +19,10 @@ from imucal.numerics.least_squares import (
 )
 from imucal.numerics.quaternion import rotate_inverse, to_matrix
 from imucal.numerics.rk4 import SLAB, StepLayout, calibrator, mul, product_rows
-from imucal.numerics.windows import segment_sums
+from imucal.numerics.windows import samples_within, segment_sums
 from imucal.settings import GyroSettings, Settings
 from imucal.stages.saturation import blocks_with
+from imucal.warning import RunWarning
 
 
 def transition_samples(t: np.ndarray, block_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -193,13 +194,44 @@ class GyroFit:
     rotation_angle: np.ndarray  # (K,) integrated rotation angle, rad
     static_bias: np.ndarray  # (3,) the bias measured on the still blocks, raw units
     excluded: np.ndarray  # (K,) bool: transitions left out of the fit (saturated samples)
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[RunWarning] = field(default_factory=list)
 
     def model_for(self, theta: np.ndarray) -> SensorModel:
         """The raw-unit model of any parameter vector of the fit (a step of its trace): scales
         relative to the nominal scale, and an optimised bias a correction in nominal rad/s on
         top of the static one (M4)."""
         return gyro_model_of(theta, self.static_bias, self.nominal_scale)
+
+    @property
+    def params(self) -> np.ndarray:
+        """(9,) misalignments and scales of the solution (``GYRO_PARAM_NAMES``); the bias is
+        ``model.b``."""
+        return gyro_theta(self.model)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """Names of ``std``: the 9 of M4, and the bias when it was optimised."""
+        return GYRO_PARAM_NAMES + (("b_x", "b_y", "b_z") if len(self.std) > 9 else ())
+
+    @property
+    def trace_params(self) -> np.ndarray:
+        """(I, 9) :attr:`params` at each accepted step of the fit (``report.trace_theta``, what
+        the optimiser's report records)."""
+        return np.array([gyro_theta(self.model_for(th))
+                         for th in self.report.trace_theta]).reshape(-1, 9)
+
+    @property
+    def trace_bias(self) -> np.ndarray:
+        """(I, 3) the raw-unit bias at each accepted step (constant unless optimised)."""
+        return np.array([self.model_for(th).b for th in self.report.trace_theta]).reshape(-1, 3)
+
+    def nominal_rate(self, w_raw: np.ndarray, unit: str) -> np.ndarray:
+        """The raw rate in nominal rad/s, uncalibrated, to set beside the calibrated one: the
+        signal itself for input in rad/s; raw counts (which carry an ADC offset) less the bias,
+        times the nominal scale."""
+        if unit != "counts":
+            return w_raw
+        return (w_raw - self.model.b) * self.nominal_scale
 
     @property
     def u_blocks(self) -> np.ndarray:
@@ -234,9 +266,9 @@ def angle_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def static_bias(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray, how: str
                 ) -> tuple[np.ndarray, str]:
-    """Gyroscope bias from the still periods (method.md §4)."""
-    lo = np.searchsorted(t, block_times[:, 0], side="left")
-    hi = np.searchsorted(t, block_times[:, 1], side="left")
+    """Gyroscope bias from the still periods (method.md §4): the samples of each block are
+    those of :func:`~imucal.numerics.windows.samples_within` (the product's one convention)."""
+    lo, hi = samples_within(t, block_times).T
     ok = (hi - lo) >= 2
     if not ok.any():
         raise ImucalError("no gyroscope samples fall inside the static blocks; check that the "
@@ -307,7 +339,7 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         raise ImucalError(f"{len(block_times)} static block(s): the gyroscope needs at least two "
                           "still poses with a rotation between them", source="gyroscope",
                           field="static blocks")
-    warnings: list[str] = []
+    warnings: list[RunWarning] = []
     u = gravity / np.linalg.norm(gravity, axis=1, keepdims=True)
     bias, bias_source = static_bias(w_raw, t, block_times, settings.bias)
     tr_all = Transitions(w_raw, t, block_times)
@@ -318,9 +350,10 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
             raise ImucalError(f"all {len(excluded)} rotations between still poses pass through "
                               "saturated gyroscope samples (flat at the sensor's limit): turn "
                               "more slowly", source="gyroscope", field="rotations")
-        warnings.append(f"{int(excluded.sum())} of {len(excluded)} rotations between still "
-                        "poses pass through saturated gyroscope samples and are left out of "
-                        "the gyroscope fit")
+        warnings.append(RunWarning("gyro_rotations_saturated", f"{int(excluded.sum())} of "
+                                   f"{len(excluded)} rotations between still poses pass through "
+                                   "saturated gyroscope samples and are left out of the "
+                                   "gyroscope fit"))
     keep = ~excluded
     tr = tr_all if keep.all() else Transitions(w_raw, t, block_times, keep)
     fit_prev, fit_meas = u[:-1][keep], u[1:][keep]
@@ -376,24 +409,30 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
 
     if np.any(model.K <= 0):
-        warnings.append("gyroscope fit reached a non-positive scale: the result is not physical")
+        warnings.append(RunWarning("gyro_scale_not_positive", "gyroscope fit reached a "
+                                   "non-positive scale: the result is not physical"))
     elif np.any(np.abs(report.theta[6:9] - 1) > 0.5):
-        warnings.append(f"gyroscope scales {np.round(report.theta[6:9], 3).tolist()} (nominal "
-                        "frame) are far from 1: check the gyroscope unit")
+        warnings.append(RunWarning("gyro_scale_far", f"gyroscope scales "
+                                   f"{np.round(report.theta[6:9], 3).tolist()} (nominal frame) "
+                                   "are far from 1: check the gyroscope unit"))
     if report.cost > report.cost_start * (1 + 1e-9):
-        warnings.append("gyroscope fit ended with a higher cost than it started from")
+        warnings.append(RunWarning("gyro_cost_rose", "gyroscope fit ended with a higher cost "
+                                   "than it started from"))
     per_step = tr_all.max_step_angle(model)
     if per_step > np.radians(20.0):
-        warnings.append(f"rotations too fast for the gyroscope's sample rate: up to "
-                        f"{np.degrees(per_step):.0f} degrees between two samples; the "
-                        "integration (M5) loses accuracy above about 20: turn more slowly")
+        warnings.append(RunWarning("gyro_rotations_fast", f"rotations too fast for the "
+                                   f"gyroscope's sample rate: up to {np.degrees(per_step):.0f} "
+                                   "degrees between two samples; the integration (M5) loses "
+                                   "accuracy above about 20: turn more slowly"))
     small = np.count_nonzero(angle < 10.0)
     if small:
-        warnings.append(f"{small} of {len(angle)} rotations between still poses are under 10 "
-                        "degrees and carry little information about the gyroscope")
+        warnings.append(RunWarning("gyro_rotations_small", f"{small} of {len(angle)} rotations "
+                                   "between still poses are under 10 degrees and carry little "
+                                   "information about the gyroscope"))
     if len(fit_meas) < 3:
-        warnings.append(f"only {len(fit_meas)} rotations between still poses: the 9 gyroscope "
-                        "parameters are barely determined; record more poses")
+        warnings.append(RunWarning("gyro_few_rotations", f"only {len(fit_meas)} rotations "
+                                   "between still poses: the 9 gyroscope parameters are barely "
+                                   "determined; record more poses"))
     return GyroFit(model=model, std=std, bias_source=bias_source, nominal_scale=s0,
                    nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
                    u_meas=u_meas, u_pred_before=before, u_pred_after=after,

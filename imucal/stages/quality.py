@@ -17,12 +17,20 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True)
-class Quality:
-    """RMS figures before and after; ``None`` where "before" has no meaning (raw counts)."""
+class BeforeAfter:
+    """One figure with the raw sensor (through its nominal frame) and with the calibration."""
 
-    static_norm_rms_mg: tuple[float | None, float]  # block means: the calibration's own error
-    sample_norm_rms_mg: tuple[float | None, float]  # single samples: dominated by sensor noise
-    gravity_angle_rms_deg: tuple[float | None, float] | None  # None without a gyroscope
+    before: float | None  # None where it has no meaning (raw counts without a nominal)
+    after: float
+
+
+@dataclass(frozen=True)
+class Quality:
+    """The RMS figures of method.md §5, before and after."""
+
+    static_norm_rms_mg: BeforeAfter  # block means: the calibration's own error
+    sample_norm_rms_mg: BeforeAfter  # single samples: dominated by sensor noise
+    gravity_angle_rms_deg: BeforeAfter | None  # None without a gyroscope
     block_norm_error_mg: np.ndarray  # (B,) after, per block
     block_norm_error_before_mg: np.ndarray | None
     notes: tuple[str, ...]
@@ -58,11 +66,11 @@ def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
         else:
             notes.append("gyroscope in raw counts with no nominal sensitivity given: no 'before' "
                          "gravity prediction error")
-        angle = (before, _rms(after))
+        angle = BeforeAfter(before, _rms(after))
     return Quality(
-        static_norm_rms_mg=(None if before_blocks is None else _rms(before_blocks),
-                            _rms(after_blocks)),
-        sample_norm_rms_mg=(before_samples, after_samples),
+        static_norm_rms_mg=BeforeAfter(None if before_blocks is None else _rms(before_blocks),
+                                       _rms(after_blocks)),
+        sample_norm_rms_mg=BeforeAfter(before_samples, after_samples),
         gravity_angle_rms_deg=angle, block_norm_error_mg=after_blocks,
         block_norm_error_before_mg=before_blocks, notes=tuple(notes))
 

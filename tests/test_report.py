@@ -1,0 +1,76 @@
+"""The summary (imucal/report.py): one report, printed by the CLI as text and by the viewer as
+markdown, so the two say the same."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import imucal
+from imucal.cli.summary import summary_lines
+from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES
+from imucal.report import fmt, report
+from viewer.summary import report_markdown
+
+
+@pytest.fixture(scope="module")
+def sample(sample_session_path):
+    return imucal.calibrate(imucal.load_session(sample_session_path))
+
+
+def test_report_rows_of_the_sample_session(sample):
+    r = sample
+    rep = report(r)
+    assert rep.title == "session.mat"
+    assert [line.label for line in rep.overview] == ["session", "static blocks", "segments",
+                                                     "lambda", "output"]
+    text = dict((line.label, line.text) for line in rep.overview)
+    s = r.session
+    assert text["session"].startswith(f"session.mat: {s.duration:.1f} s, accelerometer "
+                                      f"{len(s.acc)} samples at 100 Hz (g), gyroscope "
+                                      f"{len(s.gyro)} samples at 100 Hz (rad/s)")
+    assert text["static blocks"] == (f"{len(r.detection.blocks)} (window {r.detection.window}, "
+                                     f"min length {r.detection.min_len} samples)")
+    lc = r.whole.lcurve
+    assert text["lambda"] == (f"{r.whole.lam:.3g} (L-curve corner, point {lc.corner + 1} of "
+                              f"{len(lc.lambdas)})")
+    # Quality: the core's figures themselves, before and after.
+    assert [q.label for q in rep.quality] == ["static norm error (mg)", "sample norm error (mg)",
+                                              "gravity angle (deg)"]
+    assert rep.quality[0].figure is r.quality.static_norm_rms_mg
+    assert rep.quality[2].figure.after == r.quality.gravity_angle_rms_deg.after
+    assert rep.quality[0].figure.before > 10 * rep.quality[0].figure.after  # miscalibrated
+    # Parameters: names, units, values and standard errors of each fit, in order.
+    (seg,) = rep.segments
+    acc, gyro = seg.fits
+    assert [p.name for p in acc.params] == list(ACC_PARAM_NAMES)
+    assert [p.unit for p in acc.params] == ["rad"] * 3 + ["g/g"] * 3 + ["g"] * 3
+    np.testing.assert_array_equal([p.value for p in acc.params], r.segments[0].acc.params)
+    np.testing.assert_array_equal([p.std for p in acc.params], r.segments[0].acc.std)
+    np.testing.assert_array_equal(acc.values("scale"), r.segments[0].acc.model.K)
+    g = r.segments[0].gyro
+    assert [p.name for p in gyro.params] == list(GYRO_PARAM_NAMES) + ["b_x", "b_y", "b_z"]
+    np.testing.assert_array_equal(gyro.values("bias"), g.model.b)
+    assert [p.std for p in gyro.params][9:] == [None] * 3  # measured on the blocks, not fitted
+    assert seg.span == (f"{r.segments[0].t_start:.1f}-{r.segments[0].t_end:.1f} s, "
+                        f"{r.segments[0].n_blocks} blocks, {r.segments[0].orientations} "
+                        "orientations")
+    assert f"{len(g.u_meas)} rotations" in gyro.details
+    assert [w.code for w in rep.warnings] == ["input", "input"]  # the units were guessed
+
+
+def test_cli_and_viewer_say_the_same(sample):
+    rep = report(sample)
+    cli = "\n".join(summary_lines(rep))
+    md = report_markdown(rep)
+    said = [line.text for line in rep.overview] + [q.note for q in rep.quality]
+    said += [seg.span for seg in rep.segments] + [f.details for s in rep.segments for f in s.fits]
+    said += [w.text for w in rep.warnings] + list(rep.quality_notes)
+    for text in said:
+        assert text in cli, text
+        assert text in md, text
+    for q in rep.quality:
+        assert f"{fmt(q.figure.after, '.3g'):>10s}" in cli and fmt(q.figure.after, ".4g") in md
+    for p in rep.segments[0].fits[0].params:  # the CLI shows misalignments to 3 digits
+        assert fmt(p.value, ".3g" if p.kind == "misalignment" else ".6g") in cli
+        assert f"| {p.name} ({p.unit}) | {fmt(p.value)} | {fmt(p.std, '.2g')} |" in md

@@ -1,0 +1,112 @@
+"""The time-line entities of the Overview and Signals tabs: magnitudes, axes, the detector and
+its lanes, and the static blocks' norm errors."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import rerun as rr
+
+from . import paths as P
+from .columns import (
+    AFTER,
+    BEFORE,
+    BETWEEN,
+    CALIBRATED,
+    RAW,
+    SEGMENT_COLORS,
+    STILL,
+    XYZ,
+    log10_axis,
+    rgba,
+    send_scalars,
+    style_lines,
+    style_points,
+)
+from .decimate import for_display, magnitudes_for_display
+
+if TYPE_CHECKING:
+    from imucal.result import Result
+
+
+def log_signals(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
+    s, cal = result.session, result.calibrated
+    unit = cal.acc_unit
+    t, v = magnitudes_for_display(s.t_acc, np.column_stack([result.raw_acc_norm, cal.acc_norm]),
+                                  result.acc_still)
+    rows[P.ACC_MAGNITUDE] = send_scalars(rec, P.ACC_MAGNITUDE, t, v)
+    style_lines(rec, P.ACC_MAGNITUDE, [f"raw |a| ({unit}, nominal)", f"calibrated |a| ({unit})"],
+                [RAW, CALIBRATED])
+    for path, x, label in ((P.ACC_RAW, s.acc, s.acc_unit), (P.ACC_CALIBRATED, cal.acc, unit)):
+        t, v = for_display(s.t_acc, x)
+        rows[path] = send_scalars(rec, path, t, v)
+        style_lines(rec, path, [f"{c} ({label})" for c in "xyz"], XYZ)
+
+    raw_gyro = result.raw_gyro_norm
+    if raw_gyro is None or cal.gyro is None:
+        return
+    t, v = magnitudes_for_display(s.t_gyro, np.column_stack([raw_gyro, cal.gyro_norm]),
+                                  result.gyro_still)
+    rows[P.GYRO_MAGNITUDE] = send_scalars(rec, P.GYRO_MAGNITUDE, t, v)
+    style_lines(rec, P.GYRO_MAGNITUDE, ["raw |w| (rad/s, nominal)", "calibrated |w| (rad/s)"],
+                [RAW, CALIBRATED])
+    for path, x, label in ((P.GYRO_RAW, s.gyro, s.gyro_unit),
+                           (P.GYRO_CALIBRATED, cal.gyro, "rad/s")):
+        t, v = for_display(s.t_gyro, x)
+        rows[path] = send_scalars(rec, path, t, v)
+        style_lines(rec, path, [f"{c} ({label})" for c in "xyz"], XYZ)
+
+
+def log_detector(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
+    det, t = result.detection, result.session.t_acc
+    ts, vs = for_display(t, log10_axis(det.statistic))
+    rows[P.DETECTOR_STATISTIC] = send_scalars(rec, P.DETECTOR_STATISTIC, ts, vs)
+    style_lines(rec, P.DETECTOR_STATISTIC, ["log10 s2 (M1)"], [0x4E79A7FF])
+    rows[P.DETECTOR_THRESHOLD] = send_scalars(rec, P.DETECTOR_THRESHOLD, [t[0], t[-1]],
+                                              np.full(2, log10_axis(det.threshold)))
+    style_lines(rec, P.DETECTOR_THRESHOLD, [f"log10 threshold (k = {result.settings.k:g})"],
+                [BEFORE], width=2.0)
+    _log_lanes(result, rec, rows)
+
+
+def _log_lanes(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
+    """Still blocks and segments as state lanes: a state at each start, reset at each end."""
+    times = result.block_times.ravel()  # t_start, t_end of block 0, then block 1, ...
+    states = ["still", ""] * len(result.block_times)
+    rec.log(P.DETECTOR_BLOCKS, rr.StateConfiguration(values=["still"], labels=["still"],
+                                                     colors=rgba([STILL])), static=True)
+    rec.send_columns(P.DETECTOR_BLOCKS, indexes=[rr.TimeColumn(P.TIME, duration=times)],
+                     columns=rr.StateChange.columns(state=states))
+    rows[P.DETECTOR_BLOCKS] = len(times)
+
+    seg_t, seg_s = [], []
+    names = [f"segment {seg.index}" for seg in result.segments]
+    for seg, name in zip(result.segments, names):
+        seg_t.append(seg.t_start)
+        seg_s.append(name)
+        if seg is not result.segments[-1]:
+            seg_t.append(seg.t_end)
+            seg_s.append("between segments")
+    seg_t.append(result.segments[-1].t_end)
+    seg_s.append("")
+    colors = [SEGMENT_COLORS[i % len(SEGMENT_COLORS)] for i in range(len(names))]
+    rec.log(P.DETECTOR_SEGMENTS, rr.StateConfiguration(
+        values=[*names, "between segments"],
+        labels=[*names, "between segments (mean of neighbours)"],
+        colors=rgba([*colors, BETWEEN])), static=True)
+    rec.send_columns(P.DETECTOR_SEGMENTS, indexes=[rr.TimeColumn(P.TIME, duration=seg_t)],
+                     columns=rr.StateChange.columns(state=seg_s))
+    rows[P.DETECTOR_SEGMENTS] = len(seg_t)
+
+
+def log_block_errors(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
+    q = result.quality
+    mid = result.block_middles
+    if q.block_norm_error_before_mg is not None:
+        rows[P.BLOCK_ERROR_BEFORE] = send_scalars(rec, P.BLOCK_ERROR_BEFORE, mid,
+                                                  q.block_norm_error_before_mg)
+        style_points(rec, P.BLOCK_ERROR_BEFORE, ["before (mg)"], [BEFORE])
+    rows[P.BLOCK_ERROR_AFTER] = send_scalars(rec, P.BLOCK_ERROR_AFTER, mid,
+                                             q.block_norm_error_mg)
+    style_points(rec, P.BLOCK_ERROR_AFTER, ["after (mg)"], [AFTER])
