@@ -439,8 +439,11 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     u_prev, u_meas = u[:-1], u[1:]  # every transition, the excluded ones too
     before = None
     if have_nominal:
-        raw_model = SensorModel(T=np.eye(3), K=np.full(3, s0), b=np.zeros(3))
-        before = tr_all.predict(raw_model, u_prev)
+        # The nominal model: still-block bias, then the nominal scale. A gyroscope in raw
+        # counts has no zero of its own (a 16-bit one rests near 32768 counts), so its "before"
+        # needs the bias removed; one in rad/s is judged as it comes, bias and all.
+        b0 = bias if gyro_unit == "counts" else np.zeros(3)
+        before = tr_all.predict(SensorModel(T=np.eye(3), K=np.full(3, s0), b=b0), u_prev)
     after = rotate_inverse(q_model, u_prev)  # = tr_all.predict(model, u_prev)
     angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
 
