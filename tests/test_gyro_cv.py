@@ -7,6 +7,7 @@ import pytest
 
 import imucal
 from imucal.models import SensorModel
+from imucal.numerics.kfold import fold_of_groups, kfold_refits
 from imucal.settings import Settings
 from imucal.stages.gyro import Transitions, angle_between
 from imucal.synth import make_session
@@ -29,6 +30,26 @@ def _rms(x: np.ndarray) -> float:
 def _segment_transitions(session, result, seg) -> Transitions:
     b0, b1 = seg.blocks
     return Transitions(session.gyro, session.t_gyro, result.block_times[b0:b1])
+
+
+# --- the numerics ------------------------------------------------------------------------------
+
+
+def test_kfold_refits_are_exact_for_a_linear_problem():
+    """For residuals linear in theta the one-step refit is the refit: it matches the Tikhonov
+    solution on the rows of the other folds solved directly."""
+    rng = np.random.default_rng(3)
+    n, p, lam = 60, 5, 0.3
+    A, y = rng.normal(size=(n, p)), rng.normal(size=n)
+    theta0 = rng.normal(size=p)
+    theta = np.linalg.solve(A.T @ A + lam * np.eye(p), A.T @ y + lam * theta0)
+    folds = fold_of_groups(n // 3, 7)
+    rows = np.repeat(folds, 3)
+    got = kfold_refits(A, A @ theta - y, theta, theta0, lam, rows, 7)
+    for f in range(7):
+        Af, yf = A[rows != f], y[rows != f]
+        want = np.linalg.solve(Af.T @ Af + lam * np.eye(p), Af.T @ yf + lam * theta0)
+        np.testing.assert_allclose(got[f], want, rtol=1e-10, atol=1e-12)
 
 
 # --- the nominal model ("before") --------------------------------------------------------------
