@@ -45,7 +45,9 @@ class Settings:
     # --- gyroscope (§4) ---
     gyro_lambda: float = 1e-4  # Tikhonov lambda of the gyroscope fit
     gyro_bias: str = "all"  # "all" still blocks of the segment, or the "first" (thesis)
-    optimise_gyro_bias: bool = False  # fit the bias too, its prior the still-block estimate
+    # Fit the bias too (its prior the still-block estimate): True or False, or None to keep
+    # whichever predicts held-out turns better (cross-validation over the turns, §5).
+    optimise_gyro_bias: bool | None = None
     gyro_sensitivity: float | None = None  # rad/s per raw count (datasheet), for "before"
 
     def to_dict(self) -> dict:
@@ -118,5 +120,5 @@ class AccSettings:
 class GyroSettings:
     lam: float
     bias: str
-    optimise_bias: bool
+    optimise_bias: bool | None  # None: chosen by cross-validation
     nominal_scale: float | None  # rad/s per raw unit (Settings.gyro_sensitivity)

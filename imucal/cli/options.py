@@ -243,9 +243,11 @@ GyroLambdaOpt = Annotated[float, typer.Option(
 GyroBiasOpt = Annotated[str, typer.Option(
     "--gyro-bias", metavar="all|first", callback=_one_of("all", "first"), rich_help_panel=_GYR,
     help="Gyroscope bias from every static block (all) or the first (thesis).")]
-OptimiseGyroBiasOpt = Annotated[bool, typer.Option(
-    "--optimise-gyro-bias", "--optimize-gyro-bias", rich_help_panel=_GYR,
-    help="Fit the gyroscope bias too, with the static estimate as its prior.")]
+OptimiseGyroBiasOpt = Annotated[bool | None, typer.Option(
+    "--optimise-gyro-bias/--no-optimise-gyro-bias", "--optimize-gyro-bias/--no-optimize-gyro-bias",
+    rich_help_panel=_GYR, show_default=False,
+    help="Fit the gyroscope bias too, with the static estimate as its prior, or not "
+         "[default: whichever predicts held-out turns better (cross-validation)].")]
 GyroSensitivityOpt = Annotated[float | None, typer.Option(
     "--gyro-sensitivity", metavar="RAD/S", callback=positive, rich_help_panel=_GYR,
     show_default=False,

@@ -21,6 +21,7 @@ from imucal.stages.apply import Calibration, SegmentModels
 
 if TYPE_CHECKING:
     from imucal.result import Result
+    from imucal.stages.gyro import GyroFit
     from imucal.stages.quality import BeforeAfter
 
 FORMAT = "imucal-calibration"
@@ -83,7 +84,7 @@ def result_to_dict(result: Result) -> dict:
                      "transitions": len(seg.gyro.u_meas),
                      "transitions_excluded": int(seg.gyro.excluded.sum()),
                      "cost": {"start": _f(seg.gyro.report.cost_start),
-                              "end": _f(seg.gyro.report.cost)}}
+                              "end": _f(seg.gyro.report.cost)}} | _gyro_cv_keys(seg.gyro)
         segs.append({"t_start": _f(seg.t_start), "t_end": _f(seg.t_end),
                      "static_blocks": seg.blocks[1] - seg.blocks[0],
                      "orientations": seg.orientations,
@@ -118,6 +119,23 @@ def result_to_dict(result: Result) -> dict:
         },
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
     }
+
+
+def _gyro_cv_keys(fit: GyroFit) -> dict:
+    """The gyroscope's bias choice and its gravity prediction error in and out of sample
+    (method.md §4, §5)."""
+    cv = fit.cv
+    fitted = ~fit.excluded
+    in_sample = float(np.sqrt(np.mean(np.square(fit.angle_after[fitted]))))
+    return {"bias_optimised": bool(cv.optimise_bias),
+            "bias_optimised_by": {"setting": "setting optimise_gyro_bias"}.get(cv.how, cv.how),
+            "gravity_angle_rms_deg": {"in_sample": _f(in_sample), "cross_validated": _f(cv.rms)},
+            "cross_validation": {
+                "folds": cv.folds,
+                "gravity_angle_rms_deg": {"static_bias": _f(cv.rms_static_bias),
+                                          "optimised_bias": _f(cv.rms_optimised_bias)},
+                "note": "each rotation between still poses predicted by the fit without its "
+                        "fold (K-fold, folds dealt in turn); null: that fit not made"}}
 
 
 def save_calibration(result: Result, path: str | os.PathLike) -> None:

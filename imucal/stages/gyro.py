@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -10,6 +11,7 @@ from scipy.optimize import minimize_scalar
 
 from imucal.errors import ImucalError
 from imucal.models import GYRO_PARAM_NAMES, GYRO_THETA0, SensorModel, gyro_T, gyro_theta
+from imucal.numerics.kfold import fold_of_groups, kfold_refits
 from imucal.numerics.least_squares import (
     FactoredCov,
     FitReport,
@@ -68,6 +70,18 @@ class Transitions:
     def predict(self, model: SensorModel, u_prev: np.ndarray) -> np.ndarray:
         """M5: gravity of block k-1 carried into the body frame of block k, ``R_k^T u_(k-1)``."""
         return rotate_inverse(self.rotations(model), u_prev)
+
+    def rotations_each(self, M: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """:meth:`rotations` with a model of its own for each transition, ``w = M[k] (w_raw -
+        b[k])`` over transition k ((K, 3, 3) and (K, 3)); (K, 4). One evaluation's work: the
+        cross-validation predicts each held-out turn with its own fold's fit this way."""
+        cal = []
+        for (idx, *_), w in zip(self.layout.buckets, self.rates):
+            Mk, bk = M[idx], b[idx]  # one column of the bucket per transition
+            d = [x - bk[:, j] for j, x in enumerate(w)]
+            cal.append(tuple(d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
+                             for i in range(3)))
+        return self.layout.integrate(cal)[0]  # padding: dt = 0, identity steps
 
     def jacobian(self, model_of: Callable[[np.ndarray], SensorModel], theta: np.ndarray,
                  u_prev: np.ndarray) -> np.ndarray:
@@ -177,6 +191,38 @@ class Transitions:
         return out
 
 
+# Folds of the cross-validation over turns: K = min(CV_FOLDS, number of turns fitted).
+CV_FOLDS = 10
+# Held-out error this many times the in-sample one is said to be overfitting (method.md §5).
+# Measured: 1.1 to 1.4 on the real recordings in ../shared/data.
+OVERFIT_RATIO = 2.0
+
+
+@dataclass(frozen=True)
+class GyroCV:
+    """Gravity prediction out of sample (method.md §5): each turn predicted by a fit that did
+    not see it (K-fold over the turns), and the bias choice made by it (§4).
+
+    ``rms_static_bias`` and ``rms_optimised_bias`` are the RMS held-out angles (deg) of the fit
+    with the still-block bias and of the fit that also corrects the bias; ``None`` for a
+    variant not fitted (the choice forced by the setting), NaN with too few turns to hold any
+    out (``folds`` 0).
+    """
+
+    folds: int
+    angle: np.ndarray  # (K,) deg, the chosen fit's; NaN for turns left out of the fit
+    rms_static_bias: float | None
+    rms_optimised_bias: float | None
+    optimise_bias: bool  # the bias was fitted (12 parameters), not only measured (9)
+    how: str  # "cross-validation", "setting", or "too few turns" (one: none to hold out)
+
+    @property
+    def rms(self) -> float:
+        """RMS held-out angle of the chosen fit (deg)."""
+        rms = self.rms_optimised_bias if self.optimise_bias else self.rms_static_bias
+        return float("nan") if rms is None else float(rms)
+
+
 @dataclass(frozen=True)
 class GyroFit:
     model: SensorModel  # w = T_g K_g (w_raw - b_g), w in rad/s
@@ -194,6 +240,7 @@ class GyroFit:
     rotation_angle: np.ndarray  # (K,) integrated rotation angle, rad
     static_bias: np.ndarray  # (3,) the bias measured on the still blocks, raw units
     excluded: np.ndarray  # (K,) bool: transitions left out of the fit (saturated samples)
+    cv: GyroCV  # the same prediction out of sample, and the bias choice
     warnings: list[RunWarning] = field(default_factory=list)
 
     def model_for(self, theta: np.ndarray) -> SensorModel:
@@ -334,6 +381,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     :func:`direction_error_cov`). ``saturated`` (N,) marks gyroscope samples flat at the
     sensor's limit: a rotation through them is under-measured by any calibration, so its
     transition is left out of the fit (and of the quality figure), but still predicted and shown.
+    Whether the bias is fitted too is ``settings.optimise_bias``, or with ``None`` the variant
+    that predicts held-out turns better (:func:`fit_bias_choice`).
     """
     if len(block_times) < 2:
         raise ImucalError(f"{len(block_times)} static block(s): the gyroscope needs at least two "
@@ -367,23 +416,117 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         s0, how = 1.0, "input in rad/s"
     have_nominal = gyro_unit != "counts" or bool(settings.nominal_scale)
 
-    theta0 = GYRO_THETA0.copy()
-    n_bias = 3 if settings.optimise_bias else 0
-    if n_bias:
-        theta0 = np.r_[theta0, np.zeros(3)]  # bias correction in nominal rad/s
+    report, cv = fit_bias_choice(tr, fit_prev, fit_meas, bias, s0, settings.lam,
+                                 settings.optimise_bias)
+    if cv.optimise_bias:  # the model's bias is no longer the still-block mean alone
+        bias_source += (", then fitted (set by optimise_gyro_bias)" if cv.how == "setting"
+                        else ", then fitted (chosen by cross-validation)")
+    if not keep.all():
+        angle_cv = np.full(len(tr_all), np.nan)
+        angle_cv[keep] = cv.angle
+        cv = dataclasses.replace(cv, angle=angle_cv)
+    model = gyro_model_of(report.theta, bias, s0)
+    q_model = tr_all.rotations(model)  # integrated once, used three times below
+    std = _standard_errors(report, gravity, gravity_cov, q_model, keep, s0, settings.lam)
+
+    u_prev, u_meas = u[:-1], u[1:]  # every transition, the excluded ones too
+    before = None
+    if have_nominal:
+        # The nominal model: still-block bias, then the nominal scale. A gyroscope in raw
+        # counts has no zero of its own (a 16-bit one rests near 32768 counts), so its "before"
+        # needs the bias removed; one in rad/s is judged as it comes, bias and all.
+        b0 = bias if gyro_unit == "counts" else np.zeros(3)
+        before = tr_all.predict(SensorModel(T=np.eye(3), K=np.full(3, s0), b=b0), u_prev)
+    after = rotate_inverse(q_model, u_prev)  # = tr_all.predict(model, u_prev)
+    angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
+    in_sample = angle_between(u_meas, after)[keep]
+    warnings += _fit_warnings(tr_all, model, report, angle, in_sample, cv)
+    return GyroFit(model=model, std=std, bias_source=bias_source, nominal_scale=s0,
+                   nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
+                   u_meas=u_meas, u_pred_before=before, u_pred_after=after,
+                   t_transition=np.column_stack([t[tr_all.starts], t[tr_all.ends]]),
+                   rotation_angle=np.radians(angle), static_bias=bias, excluded=excluded,
+                   cv=cv, warnings=warnings)
+
+
+def fit_bias_choice(tr: Transitions, u_prev: np.ndarray, u_meas: np.ndarray,
+                    bias: np.ndarray, s0: float, lam: float, optimise: bool | None
+                    ) -> tuple[FitReport, GyroCV]:
+    """Fit M4 with the still-block bias (9 parameters) or with a correction of it too (12),
+    and say how well each predicts turns it did not see.
+
+    ``optimise`` True or False fits that variant; ``None`` fits both and keeps the one with
+    the lower held-out gravity prediction error (K-fold over the turns, K = min(10, turns);
+    ties keep the still-block bias, the smaller model). In-sample figures cannot choose: the
+    12-parameter fit always fits the turns it saw at least as well. On the real MPU-9150 units
+    in ../shared/data the fitted bias halves the held-out error on two (0.32 -> 0.13 deg and
+    0.31 -> 0.17 deg) and is slightly worse on the third (0.163 vs 0.173 deg).
+    """
+    n = len(u_meas)
+    n_folds = min(CV_FOLDS, n) if n >= 2 else 0
+    folds = fold_of_groups(n, n_folds)
+    reports: dict[bool, FitReport] = {}
+    rms: dict[bool, float] = {}
+    angles: dict[bool, np.ndarray] = {}
+    for opt in ([False, True] if optimise is None else [bool(optimise)]):
+        theta0 = np.r_[GYRO_THETA0, np.zeros(3)] if opt else GYRO_THETA0.copy()
+        start, start_name = theta0, "prior"
+        if opt and False in reports:  # the 9-parameter solution with no bias correction
+            start, start_name = np.r_[reports[False].theta, np.zeros(3)], "still-bias fit"
+        reports[opt] = _fit(tr, u_prev, u_meas, bias, s0, theta0, start, lam, start_name)
+        angles[opt] = (_held_out_angles(tr, reports[opt], theta0, lam, u_prev, u_meas, bias,
+                                        s0, folds, n_folds) if n_folds else np.full(n, np.nan))
+        rms[opt] = float(np.sqrt(np.mean(np.square(angles[opt])))) if n else float("nan")
+    if optimise is not None:
+        chosen, how = bool(optimise), "setting"
+    elif n_folds:
+        chosen, how = bool(rms[True] < rms[False]), "cross-validation"
+    else:  # a single turn: none to hold out, so the smaller model
+        chosen, how = False, "too few turns"
+    cv = GyroCV(folds=n_folds, angle=angles[chosen], rms_static_bias=rms.get(False),
+                rms_optimised_bias=rms.get(True), optimise_bias=chosen, how=how)
+    return reports[chosen], cv
+
+
+def _fit(tr: Transitions, u_prev: np.ndarray, u_meas: np.ndarray, bias: np.ndarray, s0: float,
+         theta0: np.ndarray, start: np.ndarray, lam: float, start_name: str) -> FitReport:
+    """M5's residuals ``u_k - R_k^T u_(k-1)`` minimised with Tikhonov on ``theta - theta0``."""
 
     def model_of(theta: np.ndarray) -> SensorModel:
         return gyro_model_of(theta, bias, s0)
 
     def res(theta: np.ndarray) -> np.ndarray:
-        return (fit_meas - tr.predict(model_of(theta), fit_prev)).ravel()
+        return (u_meas - tr.predict(model_of(theta), u_prev)).ravel()
 
     def jac(theta: np.ndarray) -> np.ndarray:
-        return tr.jacobian(model_of, theta, fit_prev)
+        return tr.jacobian(model_of, theta, u_prev)
 
-    report = fit_tikhonov(res, jac, theta0, theta0, settings.lam, start_name="prior")
-    model = model_of(report.theta)
-    q_model = tr_all.rotations(model)  # integrated once, used three times below
+    return fit_tikhonov(res, jac, start, theta0, lam, start_name=start_name)
+
+
+def _held_out_angles(tr: Transitions, report: FitReport, theta0: np.ndarray, lam: float,
+                     u_prev: np.ndarray, u_meas: np.ndarray, bias: np.ndarray, s0: float,
+                     folds: np.ndarray, n_folds: int) -> np.ndarray:
+    """Angle (deg) between each turn's measured gravity direction and its prediction (M5) by
+    the fit refitted without the turn's fold (:func:`~imucal.numerics.kfold.kfold_refits`:
+    the refits' first Gauss-Newton step from the full fit, as good as refits run to
+    convergence here); the predictions are integrated exactly, every turn with its own fold's
+    model, in one pass."""
+    q = tr.rotations(gyro_model_of(report.theta, bias, s0))
+    r = (u_meas - rotate_inverse(q, u_prev)).ravel()
+    thetas = kfold_refits(report.jac, r, report.theta, theta0, lam, np.repeat(folds, 3),
+                          n_folds)
+    models = [gyro_model_of(th, bias, s0) for th in thetas]
+    M = np.array([m.matrix for m in models])[folds]
+    b = np.array([m.b for m in models])[folds]
+    return angle_between(u_meas, rotate_inverse(tr.rotations_each(M, b), u_prev))
+
+
+def _standard_errors(report: FitReport, gravity: np.ndarray,
+                     gravity_cov: np.ndarray | FactoredCov | None, q_model: np.ndarray,
+                     keep: np.ndarray, s0: float, lam: float) -> np.ndarray:
+    """Standard errors of the parameters in raw units, with the measured gravity's own errors
+    in the residuals' covariance when they are known (:func:`direction_error_cov`)."""
     cov = report.cov
     if gravity_cov is not None:
         meat = direction_error_cov(gravity, gravity_cov, to_matrix(q_model))
@@ -394,20 +537,19 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         # Each residual is the difference of two unit vectors: only its 2 components across
         # u_k carry error to first order, so a transition gives 2 degrees of freedom, not 3.
         s2 = max(report.data_cost - trace_of(meat), 0.0) / max(2 * n // 3 - p, 1)
-        cov, _ = sandwich_cov(report.jac, settings.lam, s2, meat)
+        cov, _ = sandwich_cov(report.jac, lam, s2, meat)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     std[6:9] *= s0
-    if n_bias:
+    if len(std) > 9:
         std[9:12] /= s0
+    return std
 
-    u_prev, u_meas = u[:-1], u[1:]  # every transition, the excluded ones too
-    before = None
-    if have_nominal:
-        raw_model = SensorModel(T=np.eye(3), K=np.full(3, s0), b=np.zeros(3))
-        before = tr_all.predict(raw_model, u_prev)
-    after = rotate_inverse(q_model, u_prev)  # = tr_all.predict(model, u_prev)
-    angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
 
+def _fit_warnings(tr_all: Transitions, model: SensorModel, report: FitReport,
+                  angle: np.ndarray, in_sample: np.ndarray, cv: GyroCV) -> list[RunWarning]:
+    """What a user should know about the gyroscope fit (``angle``: degrees turned per
+    transition; ``in_sample``: the fitted transitions' gravity prediction error, deg)."""
+    warnings = []
     if np.any(model.K <= 0):
         warnings.append(RunWarning("gyro_scale_not_positive", "gyroscope fit reached a "
                                    "non-positive scale: the result is not physical"))
@@ -429,16 +571,19 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         warnings.append(RunWarning("gyro_rotations_small", f"{small} of {len(angle)} rotations "
                                    "between still poses are under 10 degrees and carry little "
                                    "information about the gyroscope"))
-    if len(fit_meas) < 3:
-        warnings.append(RunWarning("gyro_few_rotations", f"only {len(fit_meas)} rotations "
+    if len(in_sample) < 3:
+        warnings.append(RunWarning("gyro_few_rotations", f"only {len(in_sample)} rotations "
                                    "between still poses: the 9 gyroscope parameters are barely "
                                    "determined; record more poses"))
-    return GyroFit(model=model, std=std, bias_source=bias_source, nominal_scale=s0,
-                   nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
-                   u_meas=u_meas, u_pred_before=before, u_pred_after=after,
-                   t_transition=np.column_stack([t[tr_all.starts], t[tr_all.ends]]),
-                   rotation_angle=np.radians(angle), static_bias=bias, excluded=excluded,
-                   warnings=warnings)
+    fit_rms = float(np.sqrt(np.mean(np.square(in_sample)))) if len(in_sample) else np.nan
+    if fit_rms > 0 and cv.rms > OVERFIT_RATIO * fit_rms:
+        # method.md §5: a large gap between the in-sample and held-out figures is overfitting.
+        warnings.append(RunWarning(
+            "gyro_overfitted",
+            f"turns held out of the gyroscope fit are predicted {cv.rms / fit_rms:.1f} times "
+            f"worse than the turns it saw ({cv.rms:.3g} against {fit_rms:.3g} deg RMS): the fit "
+            "follows these turns more than the sensor; record more turns"))
+    return warnings
 
 
 def direction_error_cov(gravity: np.ndarray, gravity_cov: np.ndarray | FactoredCov,
