@@ -58,7 +58,7 @@ def test_a_segments_warnings_name_it(tmp_path, capsys):
         assert w.message.startswith(f"{n_out} of {len(seg.gyro.excluded)} rotations")
         assert w.text == f"segment {w.segment}: {w.message}"
     printed = _printed_warnings(r, capsys)
-    assert printed[:3] == [f"  - {w.text}" for w in r.warnings]
+    assert printed[:3] == [f"  - {w.text}" for w in r.warnings[:3]]
     assert printed[2].startswith("  - segment 1: ")
     imucal.save_calibration(r, tmp_path / "calib.json")
     written = json.loads((tmp_path / "calib.json").read_text())["warnings"]
