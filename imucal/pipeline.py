@@ -19,7 +19,7 @@ from imucal.stages.accel import (
 )
 from imucal.stages.apply import Calibration, SegmentModels
 from imucal.stages.detect import Detection, detect_static
-from imucal.stages.group import group_blocks
+from imucal.stages.group import block_mean_variance, group_blocks
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.quality import quality_figures
 from imucal.stages.saturation import blocks_with, saturated_mask
@@ -83,7 +83,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     # The grouping fits block means, one point per block where M3 had n_points: scale lambda
     # so that the prior weighs the same against the data.
     lam_blocks = whole.lam * len(det.blocks) / whole.n_points
-    grouping = group_blocks(means_n, whole.theta_nominal, lam_blocks, settings.group)
+    mean_var_n = block_mean_variance(session.acc, det.blocks) / whole.nominal.scale ** 2
+    grouping = group_blocks(means_n, mean_var_n, whole.theta_nominal, lam_blocks, settings.group)
 
     segments = []
     for i, (b0, b1) in enumerate(grouping.segments):

@@ -33,7 +33,12 @@ class Settings:
     statistic: str = "thesis"  # "thesis": M1, sum of squared variances; "imu_tk": their norm
     # --- grouping (§2) ---
     single_segment: bool = False  # imu_tk's behaviour: one segment for the whole session
-    delta: float = 0.01  # thesis code: 0.01 g (its text: 0.02 g), here relative to |g|
+    # A stretch of blocks is split where one calibration explains its block means worse than
+    # two by more than the noise does: an F-test at this level (Bonferroni over boundaries).
+    split_alpha: float = 0.001
+    # Or, given, the thesis's fixed threshold (its code: 0.01 g, its text: 0.02 g) on the
+    # change of the calibrated still magnitude, relative to |g|; None: decided by the test.
+    delta: float | None = None
     min_blocks: int = 12  # fewest still blocks a segment may have
     # --- accelerometer (§3) ---
     g: float | None = None  # |g| of the calibrated output; None: 1 g, or 9.80665 in m/s^2
@@ -73,8 +78,8 @@ class Settings:
 
     @property
     def group(self) -> GroupSettings:
-        return GroupSettings(single_segment=self.single_segment, delta=self.delta,
-                             min_blocks=self.min_blocks)
+        return GroupSettings(single_segment=self.single_segment, alpha=self.split_alpha,
+                             delta=self.delta, min_blocks=self.min_blocks)
 
     @property
     def acc(self) -> AccSettings:
@@ -103,7 +108,8 @@ class DetectSettings:
 @dataclass(frozen=True)
 class GroupSettings:
     single_segment: bool
-    delta: float
+    alpha: float  # Settings.split_alpha
+    delta: float | None
     min_blocks: int
 
 

@@ -141,19 +141,21 @@ def test_single_segment_mode():
 def test_fast_split_search_agrees_with_exhaustive():
     # best_split scores every boundary by a Gauss-Newton model and fits only the best few;
     # it must land where fitting both sides of every boundary does.
-    from imucal.stages.group import _fit, best_split
+    from imucal.stages.group import _fit, best_split, block_mean_variance, block_weights
 
     for seed, change in ((31, 0.4), (32, 0.65), (33, None)):
         session, _ = make_session(poses=36, seed=seed, change_at=change)
         r = imucal.calibrate(session, single_segment=True)
         m = r.whole.nominal.to_nominal(r.detection.means)
+        var = block_mean_variance(session.acc, r.detection.blocks) / r.whole.nominal.scale**2
         lam = r.whole.lam * len(m) / r.whole.n_points
         start = r.whole.theta_nominal
-        k = 12
+        w, _ = block_weights(m, var, start)
+        js = np.arange(12, len(m) - 12 + 1)
         costs = {}
-        for j in range(k, len(m) - k + 1):
-            _, c_a, _ = _fit(m[:j], start, lam)
-            _, c_b, _ = _fit(m[j:], start, lam)
-            costs[j] = c_a + c_b
+        for j in js:
+            _, c_a, _ = _fit(m[:j], w[:j], start, lam, centre=start)
+            _, c_b, _ = _fit(m[j:], w[j:], start, lam, centre=start)
+            costs[int(j)] = c_a + c_b
         exhaustive = min(costs, key=lambda j: (costs[j], j))
-        assert best_split(m, start, lam, k)[0] == exhaustive
+        assert best_split(m, w, start, lam, js)[0] == exhaustive

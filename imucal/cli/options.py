@@ -209,9 +209,16 @@ StatisticOpt = Annotated[str, typer.Option(
 SingleSegmentOpt = Annotated[bool, typer.Option(
     "--single-segment", rich_help_panel=_GRP,
     help="One segment for the whole session (imu_tk's behaviour).")]
-DeltaOpt = Annotated[float, typer.Option(
-    "--delta", callback=positive, rich_help_panel=_GRP,
-    help="Jump of the calibrated still magnitude, relative to |g|, that starts a new segment.")]
+SplitAlphaOpt = Annotated[float, typer.Option(
+    "--split-alpha", metavar="P", callback=fraction, rich_help_panel=_GRP,
+    help="Significance level of the test that splits the session where its error conditions "
+         "change (F-test of one accelerometer fit against two on the block means, Bonferroni "
+         "over the boundaries tried).")]
+DeltaOpt = Annotated[float | None, typer.Option(
+    "--delta", metavar="VALUE", callback=positive, rich_help_panel=_GRP, show_default=False,
+    help="Decide splits by a fixed threshold instead of the test: the change of the calibrated "
+         "still magnitude, relative to |g|, that starts a new segment (thesis: 0.01) "
+         "[default: decided by the test].")]
 MinBlocksOpt = Annotated[int, typer.Option(
     "--min-blocks", metavar="N", callback=at_least(1), rich_help_panel=_GRP,
     help="Fewest static blocks a segment may have.")]
@@ -265,7 +272,8 @@ SETTING_OPTIONS = (
     ("k", KOpt, DEFAULTS["k"]), ("init", InitOpt, None), ("init_start", InitStartOpt, None),
     ("init_end", InitEndOpt, None), ("statistic", StatisticOpt, DEFAULTS["statistic"]),
     ("single_segment", SingleSegmentOpt, DEFAULTS["single_segment"]),
-    ("delta", DeltaOpt, DEFAULTS["delta"]), ("min_blocks", MinBlocksOpt, DEFAULTS["min_blocks"]),
+    ("split_alpha", SplitAlphaOpt, DEFAULTS["split_alpha"]), ("delta", DeltaOpt, DEFAULTS["delta"]),
+    ("min_blocks", MinBlocksOpt, DEFAULTS["min_blocks"]),
     ("g", GOpt, DEFAULTS["g"]), ("lam", LambdaOpt, DEFAULTS["lam"]),
     ("lambdas", LambdasOpt, None), ("points", PointsOpt, DEFAULTS["points"]),
     ("n_select", NSelectOpt, DEFAULTS["n_select"]), ("n_group", NGroupOpt, DEFAULTS["n_group"]),
@@ -311,8 +319,8 @@ def pick(options: dict[str, Any], group: tuple) -> dict[str, Any]:
 
 
 def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
-                   single_segment, delta, min_blocks, g, lam, lambdas, points, n_select, n_group,
-                   gyro_lambda, gyro_bias, optimise_gyro_bias, gyro_sensitivity
+                   single_segment, split_alpha, delta, min_blocks, g, lam, lambdas, points,
+                   n_select, n_group, gyro_lambda, gyro_bias, optimise_gyro_bias, gyro_sensitivity
                    ) -> dict[str, Any]:
     """The options as keyword arguments of imucal.calibrate (every key of Settings)."""
     if init is not None and (init_start is not None or init_end is not None):
@@ -325,7 +333,8 @@ def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
         raise usage_error(f"the initial still interval must satisfy 0 <= START < END, got "
                           f"{start:g} {end:g}", "'--init'")
     return {"window": window, "min_len": min_len, "k": k, "init": (start, end),
-            "statistic": statistic, "single_segment": single_segment, "delta": delta,
+            "statistic": statistic, "single_segment": single_segment,
+            "split_alpha": split_alpha, "delta": delta,
             "min_blocks": min_blocks, "g": g, "lam": lam if lam == "auto" else float(lam),
             "lambdas": DEFAULTS["lambdas"] if lambdas is None else _lambdas(lambdas),
             "points": points, "n_select": n_select, "n_group": n_group,

@@ -21,6 +21,7 @@ from imucal.stages.apply import Calibration, SegmentModels
 
 if TYPE_CHECKING:
     from imucal.result import Result
+    from imucal.stages.group import Grouping
     from imucal.stages.gyro import GyroFit
     from imucal.stages.quality import BeforeAfter
 
@@ -64,6 +65,21 @@ def _model_dict(model: SensorModel, std: np.ndarray, names: tuple[str, ...]) -> 
             "std": {n: _f(s) for n, s in zip(names, std)}}
 
 
+def _grouping_dict(grouping: Grouping) -> dict:
+    """How the static blocks became segments (method.md §2), with every split test's figures."""
+    return {
+        "mode": grouping.mode,
+        "split_alpha": _f(grouping.alpha),
+        "delta": _f(grouping.delta),
+        "segments": [[a, b] for a, b in grouping.segments],  # [first block, last block + 1)
+        "tests": [{"blocks": [t.start, t.end], "boundary": t.block,
+                   "boundaries_tried": t.boundaries, "change": _f(t.change), "f": _f(t.f),
+                   "dof": list(t.dof), "p_value": _f(t.p_value), "p_adjusted": _f(t.p_adjusted),
+                   "f_critical": _f(t.f_critical), "noise_ratio": _f(t.noise_ratio),
+                   "split": t.split, "reason": t.reason} for t in grouping.tests],
+    }
+
+
 def result_to_dict(result: Result) -> dict:
     """The whole calibration file as a dict (stable key order: byte-identical output)."""
     s = result.session
@@ -105,7 +121,7 @@ def result_to_dict(result: Result) -> dict:
         "source": {"file": s.source, "sha256": s.sha256},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in result.settings.to_dict().items()},
-        "grouping": result.grouping.mode,
+        "grouping": _grouping_dict(result.grouping),
         "segments": segs,
         "static_blocks": [[_f(a), _f(b)] for a, b in result.block_times],
         "lcurve": lcurve,
