@@ -141,7 +141,7 @@ def rates(n: int, overrides: dict) -> int:
         if abs(j - true_j) > 2:
             far += 1
             print(f"FAR {kw}: split at block {j}, change before block {true_j}")
-        ratio = r.quality.static_norm_rms_mg[1] / steady.quality.static_norm_rms_mg[1]
+        ratio = r.quality.static_norm_rms_mg.after / steady.quality.static_norm_rms_mg.after
         if ratio > worst[0] and not near_end:
             worst = (ratio, f"{kw} change at {at:.2f}: split at {j}, change at {true_j}")
     print(f"{n} steady sessions: {false} split ({false / n:.1%}); {n} knocked: {missed} not "

@@ -41,11 +41,11 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import fdtrc, fdtri
 
 from imucal.errors import ImucalError
 from imucal.models import ACC_THETA0, acc_T
 from imucal.numerics.directions import distinct_orientations
-from imucal.numerics.fdist import f_isf, f_sf
 from imucal.numerics.least_squares import fit_tikhonov
 from imucal.numerics.windows import segment_sums
 from imucal.settings import GroupSettings, Settings
@@ -218,9 +218,9 @@ def _decide(d: _Data, i0: int, i1: int, j: int, thetas: tuple[np.ndarray, ...], 
                          change=change)
     gain = max(one - two, 0.0)
     f = (gain / dof[0]) / (two / dof[1]) if two > 0 else float("inf")
-    p = f_sf(f, *dof)
+    p = float(fdtrc(*dof, f))  # P(F > f), the F distribution's tail
     p_adj = min(1.0, p * n_js)
-    f_crit = f_isf(alpha / n_js, *dof)
+    f_crit = float(fdtri(*dof, 1.0 - alpha / n_js))  # F exceeded with probability alpha/n_js
     noise_ratio = d.scale * two / dof[1]
     if d.settings.delta is not None:
         split = change > d.settings.delta
