@@ -245,3 +245,19 @@ def test_default_and_options():
     with pytest.raises(imucal.ImucalError, match="ml, mean, chunks, thesis"):
         calibrate_accelerometer(raw, blocks, acc_unit="g", g_in=1.0, g_out=1.0,
                                 settings=dataclasses.replace(Settings(), points="all").acc)
+
+
+def test_real_sessions_choose_their_weights(shared_data):
+    # The Xsens block means scatter about 0.12 mg beyond their white noise (0.01-0.08 mg):
+    # drift and model error that longer holds do not average away, so its blocks are weighed
+    # nearly alike (sqrt(n) would span 7x). The MPU-9150's residuals are within its white
+    # noise: no excess, the weights follow the hold lengths (and the noise's direction).
+    xsens = imucal.load_session(shared_data / "imu_tk_xsens" / "xsens_acc.mat",
+                                gyro_path=shared_data / "imu_tk_xsens" / "xsens_gyro.mat")
+    p = imucal.calibrate(xsens).whole.points
+    assert 0.07e-3 < np.sqrt(p.excess_var) < 0.2e-3, np.sqrt(p.excess_var)
+    assert p.weight.max() / p.weight.min() < 1.4
+    mpu = imucal.load_session(shared_data / "mikoff_mpu9150" / "imu0.log", rate=100)
+    p = imucal.calibrate(mpu).whole.points
+    assert p.excess_var == 0.0
+    assert p.weight.max() / p.weight.min() > 2  # holds of 170-960 samples
