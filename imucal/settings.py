@@ -44,7 +44,10 @@ class Settings:
     g: float | None = None  # |g| of the calibrated output; None: 1 g, or 9.80665 in m/s^2
     lam: float | str = "auto"  # Tikhonov lambda: "auto" (L-curve corner) or a value >= 0
     lambdas: tuple[float, ...] = DEFAULT_LAMBDAS  # the L-curve's grid
-    points: str = "chunks"  # "thesis", "chunks" or "mean": how still samples become points
+    # How still samples become fit points: "ml" (default) one residual per block, its mean,
+    # weighted by sqrt(n) and with the noise bias of the norm removed (maximum likelihood);
+    # "mean" the plain block means; "chunks" n_group chunk means per block; "thesis" §3.2.
+    points: str = "ml"
     n_select: int = 99  # thesis points: samples spread over each block...
     n_group: int = 10  # ... averaged in groups of this many (also the chunks per block)
     # --- gyroscope (§4) ---

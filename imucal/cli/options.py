@@ -230,10 +230,13 @@ LambdaOpt = Annotated[str, typer.Option(
     "--lambda", metavar="auto|VALUE", callback=_lambda, rich_help_panel=_ACC,
     help="Tikhonov weight: auto (L-curve corner) or a fixed value >= 0.")]
 PointsOpt = Annotated[str, typer.Option(
-    "--points", metavar="thesis|chunks|mean", callback=_one_of("thesis", "chunks", "mean"),
-    rich_help_panel=_ACC,
-    help="Fit points per block: thesis (99 samples averaged in groups of 10), chunks (10 "
-         "chunk means) or mean (one per block).")]
+    "--points", metavar="ml|mean|chunks|thesis",
+    callback=_one_of("ml", "mean", "chunks", "thesis"), rich_help_panel=_ACC,
+    help="Fit points per block: ml (maximum likelihood: one per block, its mean, weighted by "
+         "the square root of its length, evened out where the blocks scatter more than white "
+         "noise, the noise bias of the norm removed), mean (the plain block mean), chunks "
+         "(--n-group chunk means) or thesis (--n-select samples averaged in groups of "
+         "--n-group).")]
 LambdasOpt = Annotated[str | None, typer.Option(
     "--lambdas", metavar="L1,L2,...", callback=_lambdas_option, rich_help_panel=_ACC,
     show_default=False,
