@@ -17,6 +17,7 @@ from imucal.stages.accel import (
     make_nominal,
     select_points,
 )
+from imucal.stages.accel_cv import leave_one_block_out
 from imucal.stages.apply import Calibration, SegmentModels
 from imucal.stages.detect import Detection, detect_static
 from imucal.stages.group import block_mean_variance, group_blocks
@@ -72,9 +73,10 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                    session.t_acc[det.blocks[:, 1] - 1]])
     if session.init_still_s is not None:  # a hint the file gave; only reported for now (§1)
         t0, t1 = block_times[0] - session.t_acc[0]
-        warnings.append(f"the file states an initial still period of {session.init_still_s:g} "
-                        f"s; the first still block found spans {t0:.1f}-{t1:.1f} s (the stated "
-                        "length is not used by the detector)")
+        warnings.append(RunWarning(
+            "init_still_stated", f"the file states an initial still period of "
+            f"{session.init_still_s:g} s; the first still block found spans {t0:.1f}-{t1:.1f} s"
+            " (the stated length is not used by the detector)"))
 
     # A first whole-session fit: it gives the grouping calibrated magnitudes (method.md §2).
     whole = calibrate_accelerometer(session.acc, det.blocks, acc_unit=session.acc_unit,
@@ -103,15 +105,21 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                            block_mean_cov(session.acc, blocks, acc_fit),
                                            saturated=gyro_sat)
         n_orient = distinct_orientations(det.means[b0:b1] - acc_fit.model.b)
+        acc_cv = leave_one_block_out(acc_fit, det.means[b0:b1])
         seg = Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
                       t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,
-                      orientations=n_orient)
+                      orientations=n_orient, acc_cv=acc_cv)
         segments.append(seg)
         # A warning names its segment only when there are several: one segment is the session.
         where = i if len(grouping.segments) > 1 else None
         warnings += [w.in_segment(where) for w in acc_fit.warnings]
         if gyro_fit is not None:
             warnings += [w.in_segment(where) for w in gyro_fit.warnings]
+        if acc_cv.overfitted:
+            warnings.append(RunWarning(
+                "acc_overfitted", f"overfitted: still blocks held out of the accelerometer fit "
+                f"are off by {acc_cv.rms_mg:.3g} mg RMS against {acc_cv.in_sample_rms_mg:.3g} mg "
+                f"for the blocks it saw; {acc_cv.advice()}", where))
         if n_orient < 9:
             warnings.append(RunWarning(
                 "few_orientations", f"only {n_orient} distinct still orientations; 9 or more are "
@@ -125,7 +133,9 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         gyro_unit_raw=session.gyro_unit if session.has_gyro else None)
     calibrated = calibration.apply(session)
     quality = quality_figures(session, det, calibrated,
-                              [s.gyro for s in segments if s.gyro is not None], g_in, g_out)
+                              [s.gyro for s in segments if s.gyro is not None],
+                              np.concatenate([s.acc_cv.block_error_mg for s in segments]),
+                              g_in, g_out)
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
                   calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings)

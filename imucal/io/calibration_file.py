@@ -127,10 +127,12 @@ def result_to_dict(result: Result) -> dict:
         "lcurve": lcurve,
         "lambda": _f(result.whole.lam),
         "quality": {
-            "static_norm_rms_mg": _before_after(q.static_norm_rms_mg),
+            "static_norm_rms_mg": _before_after(q.static_norm_rms_mg) | {
+                "cross_validated": _f(q.static_norm_cv_mg)},
             "sample_norm_rms_mg": _before_after(q.sample_norm_rms_mg) | {
                 "note": "single samples: dominated by sensor noise"},
-            "gravity_angle_rms_deg": None if ga is None else _before_after(ga),
+            "gravity_angle_rms_deg": None if ga is None else _before_after(ga) | {
+                "cross_validated": _f(q.gravity_angle_cv_deg)},
             "notes": list(q.notes),
         },
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
