@@ -142,7 +142,8 @@ def _print_report(report, limits) -> int:
                      f"{len(out_of_spec)} fail")
     if failed:
         lines.append("failed:")
-        lines += [f"  - {r['path']}: {r['error']}" for r in failed]
+        lines += [f"  - {r['error'] if r['path'] in r['error'] else r['path'] + ': ' + r['error']}"
+                  for r in failed]
     if out_of_spec:
         lines.append("out of spec:")
         lines += [f"  - {r['device']}/{r['session']}: {'; '.join(r['spec_broken'])}"
