@@ -294,7 +294,7 @@ def _log_detector(result: Result, rec: rr.RecordingStream, rows: dict[str, int])
     _style_lines(rec, P.DETECTOR_STATISTIC, ["log10 s2 (M1)"], [0x4E79A7FF])
     rows[P.DETECTOR_THRESHOLD] = _send_scalars(rec, P.DETECTOR_THRESHOLD, [t[0], t[-1]],
                                                np.full(2, _log10(det.threshold)))
-    _style_lines(rec, P.DETECTOR_THRESHOLD, [f"log10 threshold (k = {result.settings.k:g})"],
+    _style_lines(rec, P.DETECTOR_THRESHOLD, [f"log10 threshold (k = {det.k:g})"],
                  [BEFORE], width=2.0)
 
     bt = result.block_times
