@@ -19,7 +19,8 @@ from imucal.stages.accel import (
 )
 from imucal.stages.apply import Calibration, SegmentModels
 from imucal.stages.detect import Detection
-from imucal.stages.detect_tuning import count_orientations, tune_detector
+from imucal.stages.detect_score import count_orientations
+from imucal.stages.detect_tuning import tune_detector
 from imucal.stages.group import group_blocks
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.quality import quality_figures

@@ -16,7 +16,7 @@ from imucal.errors import ImucalError
 from imucal.numerics.windows import block_means
 from imucal.session import Session
 from imucal.stages.detect import detect_static, isolated_outliers
-from imucal.stages.detect_tuning import loo_norm_error_mg, same_hold
+from imucal.stages.detect_score import loo_norm_error_mg, same_hold
 from imucal.synth import make_session
 
 

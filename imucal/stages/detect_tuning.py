@@ -12,17 +12,18 @@ window plus its shortest block). So, for every value the user left unset:
   stretch, ``LOCAL(101) = 2`` the thesis's k. A sensor whose poses are noisier than its
   initial rest (a hand holds them) needs a large k to find them; the local level keeps such a
   k from stretching every block into the turns, which the accelerometer barely sees (a block
-  mean hardly moves) and the gyroscope fit pays for (M5).
-* Each candidate is scored by a cross-validated static norm error (method.md §5): the
-  accelerometer's block-mean fit (M2/M3 of accel.py, at a fixed small lambda) predicts every
-  block from a fit without it and without the other pieces of its hold, so a hold cut in
-  two cannot predict itself, and a block that swallowed a turn is predicted badly. imu_tk keeps
-  the lowest in-sample residual over k = 2..10, which more, shorter blocks always lower.
-  Candidates must keep MIN_ORIENTATIONS distinct directions and nine tenths of the most any
-  candidate found, so dropping the awkward poses does not win either.
+  mean hardly moves: measured, k = 2 -> 32 on a synthetic session lowers the accelerometer's
+  cross-validated error 0.195 -> 0.177 mg while the gravity error grows 0.045 -> 0.41 deg)
+  and the gyroscope fit pays for (M5).
+* Each candidate is scored by a cross-validated static norm error of block means
+  (:mod:`imucal.stages.detect_score`; imu_tk keeps the lowest in-sample residual over k =
+  2..10, which more, shorter blocks always lower). Candidates must keep MIN_ORIENTATIONS
+  distinct directions and nine tenths of the most any candidate found, so dropping the
+  awkward poses does not win either.
 * The window starts at the thesis's 1.01 s and is halved while the blocks found are not
-  comfortably longer than it (short holds), never below what the noise allows (MIN_WINDOW);
-  the shortest block keeps the thesis's ratio to the window.
+  comfortably longer than it (short holds), down to 0.25 s (MIN_WINDOW_S: shorter windows
+  see a turn's slow start too late) and never below MIN_WINDOW samples (the noise); the
+  shortest block keeps the thesis's ratio to the window.
 
 M1 is computed once per window; the thresholds are tried on its per-bin maximum (a few samples
 a bin), so a scan costs a few passes over the recording, and the chosen setting is redone at
@@ -37,10 +38,8 @@ from collections.abc import Callable
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.models import ACC_THETA0
 from imucal.numerics.windows import runs_of_true
 from imucal.settings import THESIS_INIT, DetectSettings
-from imucal.stages.accel import best_fit, ellipsoid_start, jacobian, make_nominal, residuals
 from imucal.stages.detect import (
     INIT_MAX_F,
     THESIS_MIN_LEN_S,
@@ -58,6 +57,7 @@ from imucal.stages.detect import (
     wander_ratio,
     without_outliers,
 )
+from imucal.stages.detect_score import MIN_ORIENTATIONS, Blocks, Prefix, Scorer
 
 K_GRID = tuple(2.0 ** (i / 2) for i in range(19))  # 1 ... 512, a factor sqrt(2) apart
 MIN_WINDOW = 11  # samples: below, a still window's variance scatters by more than +-45 %
@@ -66,11 +66,7 @@ MIN_WINDOW_S = 0.25  # s: shorter windows see a turn's slow start too late (meas
 HALVINGS = 2  # the window goes down to a quarter of the thesis's (0.25 s) for short holds
 HOLD_WINDOWS = 1.5  # a window fits the holds when the median block is this many windows long
 QUIET_QUANTILE = 0.05  # the quietest 5 % of short windows tell the noise level
-MIN_ORIENTATIONS = 12  # 9 parameters, and some to spare for the cross-validation
 KEEP_ORIENTATIONS = 0.9  # of the most orientations any candidate found
-TUNE_LAMBDA = 1e-4  # Tikhonov weight of the scoring fit (block means, nominal frame)
-HOLD_ANGLE_DEG = 3.0  # consecutive blocks closer than this are pieces of one hold
-GN_STEPS = 6  # Gauss-Newton steps of the scoring fit
 TIE = 0.10  # scores within 10 % of the best are the same: cross-validation noise
 BIN_SAMPLES = 16  # scan bins: about window / 16 samples each
 
@@ -94,30 +90,13 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     outliers = isolated_outliers(acc)
     clean = without_outliers(acc, outliers)
 
-    stats: dict[int, np.ndarray] = {}
-    wq = min(windows)
-    stats[wq] = _statistic(clean, wq, settings.statistic)
-    quiet = quiet_level(stats[wq])
-    if not quiet > 0.0:
-        raise ImucalError("the accelerometer is exactly constant over most of the recording, so "
-                          "no noise level can be learned (quantised or synthetic data?)",
-                          source=source, field="accelerometer")
-    ref, init, note = initial_level(clean, t, settings.init or THESIS_INIT, settings.statistic,
-                                    source, slide=settings.init is not None)
-    if ref is None:
-        ref = quiet
-        reference = (f"the quiet level: the lowest {QUIET_QUANTILE:.0%} of M1 over "
-                     f"{wq}-sample windows of the whole recording")
-        if note:
-            note += ("; the noise level was learned from the quietest stretches of the "
-                     "recording instead: start recordings with the sensor lying still")
-    else:
-        reference = f"the initial still interval {init[0]:g}-{init[1]:g} s"
+    stats = {min(windows): _statistic(clean, min(windows), settings.statistic)}
+    ref, init, note, reference, quiet = _reference(clean, t, stats, settings, source)
     # An explicit k is the thesis's detector: s2 < k s2_init and nothing else.
     ks = K_GRID if settings.k is None else (float(settings.k),)
     local = settings.k is None
-    scorer = _Scorer(acc_unit, g_in)
-    tried: list[tuple[Candidate, _Blocks]] = []
+    scorer = Scorer(acc_unit, g_in)
+    tried: list[tuple[Candidate, Blocks]] = []
     for w in sorted(windows, reverse=True):
         if w not in stats:
             stats[w] = _statistic(clean, w, settings.statistic)
@@ -135,7 +114,7 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     q = local_factor(best.window) if local else None
     runs = still_runs(stat, best.k * ref, q, outliers)
     lengths = runs[:, 1] - runs[:, 0]
-    exact = _Blocks.of(_Prefix(acc, 1), runs[lengths >= best.min_len])
+    exact = Blocks.of(Prefix(acc, 1), runs[lengths >= best.min_len])
     blocks = exact.blocks
     cands[chosen] = scorer.candidate(best.window, best.min_len, best.k, exact, force=True)
     reason = why(cands[chosen])
@@ -144,7 +123,8 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     tuned = tuple(name for name, v in (("window", settings.window), ("min_len", settings.min_len),
                                        ("k", settings.k)) if v is None)
     tuning = Tuning(
-        tuned=tuned, reference=reference, local_factor=q, quiet_level=quiet, quiet_window=wq,
+        tuned=tuned, reference=reference, local_factor=q, quiet_level=quiet,
+        quiet_window=min(windows),
         candidates=tuple(cands), chosen=chosen, reason=reason,
         hold_s=float((np.median(exact.counts) + best.window) / rate) if len(blocks) else None,
         short_holds=short, min_hold_s=min_hold / rate)
@@ -153,6 +133,28 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
                      k=best.k, note=note, outliers=outliers,
                      outlier_note=outlier_note(outliers, t, acc), tuning=tuning,
                      orientations=cands[chosen].orientations)
+
+
+def _reference(clean: np.ndarray, t: np.ndarray, stats: dict[int, np.ndarray],
+               settings: DetectSettings, source: str
+               ) -> tuple[float, tuple[float, float] | None, str | None, str, float]:
+    """The reference level s2_init, the interval it came from, a note for the user, where it
+    came from in words, and the quiet level (of the one statistic in ``stats``)."""
+    (wq, stat), = stats.items()
+    quiet = quiet_level(stat)
+    if not quiet > 0.0:
+        raise ImucalError("the accelerometer is exactly constant over most of the recording, so "
+                          "no noise level can be learned (quantised or synthetic data?)",
+                          source=source, field="accelerometer")
+    ref, init, note = initial_level(clean, t, settings.init or THESIS_INIT, settings.statistic,
+                                    source, slide=settings.init is not None)
+    if ref is not None:
+        return ref, init, note, f"the initial still interval {init[0]:g}-{init[1]:g} s", quiet
+    if note:
+        note += ("; the noise level was learned from the quietest stretches of the recording "
+                 "instead: start recordings with the sensor lying still")
+    return quiet, None, note, (f"the quiet level: the lowest {QUIET_QUANTILE:.0%} of M1 over "
+                               f"{wq}-sample windows of the whole recording"), quiet
 
 
 def _statistic(x: np.ndarray, window: int, statistic: str) -> np.ndarray:
@@ -220,39 +222,9 @@ def still_runs(values: np.ndarray, threshold: float, local: float | None,
     return runs_of_true(mask)
 
 
-class _Prefix:
-    """Running sums of a signal over bins of ``d`` samples, centred on the first sample (raw
-    counts lose no digits): the sum over any run of bins in O(1)."""
-
-    def __init__(self, x: np.ndarray, d: int):
-        x = np.asarray(x, dtype=np.float64)
-        n = len(x)
-        self.d, self.origin = d, x[0].copy()
-        edges = np.arange(0, n, d)
-        sums = np.add.reduceat(x - self.origin, edges, axis=0)
-        self.s1 = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(sums, axis=0)])
-        self.count = np.minimum(np.arange(len(edges) + 1) * d, n)
-
-
-class _Blocks:
-    """Blocks ([start, end) sample indices), their lengths and raw mean vectors."""
-
-    def __init__(self, blocks: np.ndarray, counts: np.ndarray, means: np.ndarray):
-        self.blocks, self.counts, self.means = blocks, counts, means
-
-    @classmethod
-    def of(cls, pre: _Prefix, runs: np.ndarray) -> _Blocks:
-        """The blocks of ``runs`` in bins of ``pre``."""
-        a, b = runs[:, 0], runs[:, 1]
-        counts = (pre.count[b] - pre.count[a]).astype(np.int64)
-        blocks = np.column_stack([pre.count[a], pre.count[b]]).astype(np.int64).reshape(-1, 2)
-        means = (pre.s1[b] - pre.s1[a]) / np.maximum(counts, 1)[:, None] + pre.origin
-        return cls(blocks, counts, means.reshape(-1, 3))
-
-
 def _scan(acc: np.ndarray, stat: np.ndarray, ref: float, ks: tuple[float, ...], window: int,
-          min_len: int, outliers: np.ndarray, local: bool, scorer: _Scorer
-          ) -> list[tuple[Candidate, _Blocks]]:
+          min_len: int, outliers: np.ndarray, local: bool, scorer: Scorer
+          ) -> list[tuple[Candidate, Blocks]]:
     """Every k at one window, on bins of ``window / BIN_SAMPLES`` samples: a bin is still when
     its largest M1 is, so the blocks are the full-resolution ones trimmed by less than a bin
     at each end."""
@@ -261,18 +233,18 @@ def _scan(acc: np.ndarray, stat: np.ndarray, ref: float, ks: tuple[float, ...], 
     nb = -(-n // d)
     padded = np.concatenate([stat, np.full(nb * d - n, np.inf)]) if nb * d > n else stat
     binmax = padded.reshape(nb, d).max(axis=1)
-    pre = _Prefix(acc, d)
+    pre = Prefix(acc, d)
     q = local_factor(window) if local else None
     out = []
     for k in ks:
         runs = still_runs(binmax, k * ref, q, outliers, per=d)
         runs = runs[(pre.count[runs[:, 1]] - pre.count[runs[:, 0]]) >= min_len]
-        blk = _Blocks.of(pre, runs)
+        blk = Blocks.of(pre, runs)
         out.append((scorer.candidate(window, min_len, k, blk), blk))
     return out
 
 
-def _fits_the_holds(found: list[tuple[Candidate, _Blocks]], window: int) -> bool:
+def _fits_the_holds(found: list[tuple[Candidate, Blocks]], window: int) -> bool:
     """Is this window short enough for the holds? Its best-scoring eligible candidate's median
     block is at least HOLD_WINDOWS windows long (the thesis: 3 s holds, 2 s blocks, 1 s
     window). None eligible: too few poses found, and shorter windows may find more."""
@@ -319,135 +291,6 @@ def choose(cands: list[Candidate]) -> tuple[int, Callable[[Candidate], str]]:
                 "it, the longest window and the middle of its plateau of k")
 
     return chosen, why
-
-
-class _Scorer:
-    """Orientations and cross-validated score of a set of blocks, cached by the blocks."""
-
-    def __init__(self, acc_unit: str, g_in: float):
-        self.acc_unit, self.g_in = acc_unit, g_in
-        self.cache: dict[bytes, tuple[int, float | None]] = {}
-
-    def candidate(self, window: int, min_len: int, k: float, blk: _Blocks, force: bool = False
-                  ) -> Candidate:
-        """The candidate's row; scored when it has MIN_ORIENTATIONS (or ``force``)."""
-        key = blk.blocks.tobytes() + bytes([force])
-        if key not in self.cache:
-            self.cache[key] = self._score(blk, force)
-        orient, score = self.cache[key]
-        return Candidate(window, min_len, float(k), len(blk.blocks), orient, score)
-
-    def _score(self, blk: _Blocks, force: bool) -> tuple[int, float | None]:
-        p = nominal_means(blk.means, self.acc_unit, self.g_in)
-        if p is None:
-            return min(len(blk.means), 1), None
-        orient = count_directions(p)
-        if orient < 2 or not (force or orient >= MIN_ORIENTATIONS):
-            return orient, None
-        return orient, loo_norm_error_mg(p, blk.counts / blk.counts.sum(), same_hold(p))
-
-
-def nominal_means(means: np.ndarray, acc_unit: str, g_in: float) -> np.ndarray | None:
-    """Block means in the accelerometer's nominal frame (accel.make_nominal: about its zero,
-    |g| about 1); ``None`` where raw counts leave the zero unknown."""
-    if len(means) < 4 and acc_unit == "counts":
-        return None
-    try:
-        p = make_nominal(means, acc_unit, g_in).to_nominal(means)
-    except ImucalError:
-        return None
-    if not np.all(np.isfinite(p)) or np.any(np.linalg.norm(p, axis=1) == 0):
-        return None
-    return p
-
-
-def count_orientations(means: np.ndarray, acc_unit: str, g_in: float) -> int:
-    """Distinct still directions (15 degrees apart) of block means, about the accelerometer's
-    nominal zero (the sphere fit's centre for raw counts)."""
-    p = nominal_means(means, acc_unit, g_in)
-    return min(len(means), 1) if p is None else count_directions(p)
-
-
-def count_directions(p: np.ndarray, min_angle_deg: float = 15.0) -> int:
-    """:func:`imucal.numerics.directions.distinct_orientations`'s greedy count, on one matrix of
-    cosines (it runs on every candidate)."""
-    u = p / np.linalg.norm(p, axis=1, keepdims=True)
-    cos = u @ u.T
-    limit = np.cos(np.radians(min_angle_deg))
-    kept = [0]
-    for i in range(1, len(u)):
-        if cos[i, kept].max() < limit:
-            kept.append(i)
-    return len(kept)
-
-
-def same_hold(p: np.ndarray) -> np.ndarray:
-    """Per block: does it continue the hold of the block before (its direction within
-    HOLD_ANGLE_DEG)? Pieces of one cut hold, not a new pose."""
-    u = p / np.linalg.norm(p, axis=1, keepdims=True)
-    return np.r_[False, np.einsum("ij,ij->i", u[1:], u[:-1]) > np.cos(np.radians(HOLD_ANGLE_DEG))]
-
-
-def loo_norm_error_mg(p: np.ndarray, w: np.ndarray, hold: np.ndarray,
-                      lam: float = TUNE_LAMBDA) -> float | None:
-    """Cross-validated static norm error (method.md §5) of block means ``p`` (nominal frame,
-    |g| = 1), in mg: RMS over blocks, with weights ``w`` (their share of the samples), of
-    ``1 - |T K (p_b - b)|`` predicted by the M3 fit without block b and the other pieces of
-    its hold (``hold``: :func:`same_hold`), so a cut hold cannot predict itself.
-
-    The M3 fit on all blocks is Gauss-Newton from accel.py's closed-form ellipsoid start (LM,
-    accel.best_fit, where that does not settle); each left-out fit is one Gauss-Newton step
-    from it (``theta_-G = theta + H_-G^-1 J_G' r_G``), exact for a linear model and close for
-    this nearly linear one.
-    """
-    theta = _fit_block_means(p, lam)
-    if theta is None:
-        return None
-    with np.errstate(all="ignore"):
-        r = residuals(theta, p)
-        J = jacobian(theta, p)
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
-        return None
-    first = np.flatnonzero(~hold)
-    group = np.cumsum(~hold) - 1
-    H = J.T @ J + lam * np.eye(J.shape[1])
-    JJ = np.add.reduceat(J[:, :, None] * J[:, None, :], first, axis=0)
-    Jr = np.add.reduceat(J * r[:, None], first, axis=0)
-    try:
-        step = np.linalg.solve(H[None] - JJ, Jr[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        return None
-    r_cv = r + np.einsum("ij,ij->i", J, step[group])
-    err = float(np.sqrt(np.sum(w * r_cv * r_cv))) * 1e3
-    return err if np.isfinite(err) else None
-
-
-def _fit_block_means(p: np.ndarray, lam: float) -> np.ndarray | None:
-    """M3 on block means with Tikhonov ``lam``: a few Gauss-Newton steps from the ellipsoid
-    start (the problem is nearly linear there); LM (accel.best_fit) if they do not settle."""
-    theta = ellipsoid_start(p)
-    if theta is not None and np.all(theta[3:6] > 0):
-        eye = lam * np.eye(9)
-        with np.errstate(all="ignore"):
-            for _ in range(GN_STEPS):
-                r = residuals(theta, p)
-                J = jacobian(theta, p)
-                g = J.T @ r + lam * (theta - ACC_THETA0)
-                try:
-                    step = np.linalg.solve(J.T @ J + eye, g)
-                except np.linalg.LinAlgError:
-                    break
-                theta = theta - step
-                if not np.all(np.isfinite(theta)):
-                    break
-                if np.max(np.abs(step)) < 1e-12:
-                    return theta
-    start = theta if theta is not None and np.all(np.isfinite(theta)) else ACC_THETA0.copy()
-    try:
-        report, _ = best_fit(p, lam, {"start": start})
-    except ImucalError:
-        return None
-    return report.theta
 
 
 def _refuse_never_still(clean: np.ndarray, blocks: np.ndarray, source: str) -> None:
