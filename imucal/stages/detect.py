@@ -44,8 +44,8 @@ class Tuning:
     tuned: tuple[str, ...]  # the settings the data chose ("window", "min_len", "k")
     reference: str  # where the reference level s2_init came from
     local_factor: float | None  # blocks end where s2 exceeds this times their own median s2
-    quiet_level: float  # low quantile of s2 over short windows of the whole recording
-    quiet_window: int
+    quiet_level: float  # low quantile of s2 over the windows of the whole recording
+    quiet_window: int  # the windows': the shortest tried when it was the reference
     candidates: tuple[Candidate, ...]
     chosen: int  # index into candidates
     reason: str
@@ -193,28 +193,33 @@ def isolated_outliers(x: np.ndarray) -> np.ndarray:
 
     ``e_i = x_i - (x_(i-1) + x_(i+1)) / 2`` is the distance from the neighbours' mean; its
     typical size (1.4826 x the median of |e|, on a subsample of long recordings) is the sensor
-    noise. The ends are mirrored, so the first and last samples are judged too.
+    noise. Only the few samples far beyond it have their neighbours' steps compared. The ends
+    are mirrored, so the first and last samples are judged too.
     """
     x = np.asarray(x, dtype=np.float64)
     n = len(x)
-    flagged = np.zeros(n, dtype=bool)
     if n < 5:
         return np.zeros(0, np.int64)
     stride = max(1, n // 200_000)
+    found = []
     for j in range(x.shape[1]):
         c = x[:, j]
         p = np.concatenate([c[2:0:-1], c, c[-2:-4:-1]])  # mirrored about both ends
-        prev2, prev1, next1, next2 = p[:n], p[1:n + 1], p[3:n + 3], p[4:n + 4]
-        e = np.abs(c - 0.5 * (prev1 + next1))
+        e = p[1:n + 1] + p[3:n + 3]
+        e *= -0.5
+        e += c
+        np.abs(e, out=e)
         scale = 1.4826 * float(np.median(e[::stride]))
         if scale == 0.0:  # quantised: most samples equal their neighbours
             scale = float(np.mean(e))
         if scale == 0.0 or not np.isfinite(scale):
             continue
-        steps = np.maximum(np.abs(next1 - prev1), np.abs(next2 - next1))
-        np.maximum(steps, np.abs(prev1 - prev2), out=steps)
-        flagged |= (e > SPIKE_NOISE * scale) & (e > SPIKE_ISOLATION * steps)
-    return np.flatnonzero(flagged)
+        i = np.flatnonzero(e > SPIKE_NOISE * scale)  # few: the steps only there
+        q = i + 2  # index into p
+        steps = np.maximum.reduce([np.abs(p[q + 1] - p[q - 1]), np.abs(p[q + 2] - p[q + 1]),
+                                   np.abs(p[q - 1] - p[q - 2])]) if len(i) else np.zeros(0)
+        found.append(i[e[i] > SPIKE_ISOLATION * steps])
+    return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
 
 
 def without_outliers(x: np.ndarray, outliers: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.models import ACC_THETA0
+from imucal.numerics.windows import block_means
 from imucal.stages.accel import best_fit, ellipsoid_start, jacobian, make_nominal, residuals
 from imucal.stages.detect import Candidate
 
@@ -26,7 +27,8 @@ GN_STEPS = 6  # Gauss-Newton steps of the scoring fit
 
 class Prefix:
     """Running sums of a signal over bins of ``d`` samples, centred on the first sample (raw
-    counts lose no digits): the sum over any run of bins in O(1)."""
+    counts lose no digits): the sum over any run of bins in O(1). The scan's bins hold a few
+    samples each, so the running sums are short and lose no digits either."""
 
     def __init__(self, x: np.ndarray, d: int):
         x = np.asarray(x, dtype=np.float64)
@@ -43,6 +45,12 @@ class Blocks:
 
     def __init__(self, blocks: np.ndarray, counts: np.ndarray, means: np.ndarray):
         self.blocks, self.counts, self.means = blocks, counts, means
+
+    @classmethod
+    def exact(cls, x: np.ndarray, blocks: np.ndarray) -> Blocks:
+        """``blocks`` in samples, their means summed over each block alone."""
+        blocks = blocks.astype(np.int64).reshape(-1, 2)
+        return cls(blocks, blocks[:, 1] - blocks[:, 0], block_means(x, blocks))
 
     @classmethod
     def of(cls, pre: Prefix, runs: np.ndarray) -> Blocks:
@@ -102,16 +110,21 @@ def count_orientations(means: np.ndarray, acc_unit: str, g_in: float) -> int:
 
 
 def count_directions(p: np.ndarray, min_angle_deg: float = 15.0) -> int:
-    """:func:`imucal.numerics.directions.distinct_orientations`'s greedy count, on one matrix of
-    cosines (it runs on every candidate)."""
+    """:func:`imucal.numerics.directions.distinct_orientations`'s greedy count (a direction is
+    kept unless within ``min_angle_deg`` of one kept before it), one matrix of cosines and one
+    step per kept direction: it runs on every candidate."""
     u = p / np.linalg.norm(p, axis=1, keepdims=True)
-    cos = u @ u.T
-    limit = np.cos(np.radians(min_angle_deg))
-    kept = [0]
-    for i in range(1, len(u)):
-        if cos[i, kept].max() < limit:
-            kept.append(i)
-    return len(kept)
+    near = (u @ u.T) >= np.cos(np.radians(min_angle_deg))
+    covered = np.zeros(len(u), dtype=bool)
+    kept, i = 0, 0
+    while i < len(u):
+        kept += 1
+        covered |= near[i]
+        rest = np.flatnonzero(~covered[i + 1:])
+        if len(rest) == 0:
+            break
+        i += 1 + int(rest[0])
+    return kept
 
 
 def same_hold(p: np.ndarray) -> np.ndarray:

@@ -71,12 +71,14 @@ TIE = 0.10  # scores within 10 % of the best are the same: cross-validation nois
 BIN_SAMPLES = 16  # scan bins: about window / 16 samples each
 
 
-def local_factor(window: int) -> float:
+def local_factor(window: int, statistic: str = "thesis") -> float:
     """How far M1 may rise over a still stretch's own median before the stretch ends: three
     standard deviations of a variance over ``window - 1`` degrees of freedom, squared (M1
-    squares variances). 2.0 at the thesis's 101 samples, its k; measured on white noise it
-    lies between the 99.9 % points of one axis alone and of three equal axes."""
-    return (1.0 + 3.0 * math.sqrt(2.0 / max(window - 1, 1))) ** 2
+    squares variances; imu_tk's norm of the variances does not). 2.0 at the thesis's 101
+    samples, its k; measured on white noise it lies between the 99.9 % points of one axis
+    alone and of three equal axes."""
+    f = 1.0 + 3.0 * math.sqrt(2.0 / max(window - 1, 1))
+    return f * f if statistic == "thesis" else f
 
 
 def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
@@ -90,11 +92,11 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     outliers = isolated_outliers(acc)
     clean = without_outliers(acc, outliers)
 
-    stats = {min(windows): _statistic(clean, min(windows), settings.statistic)}
-    ref, init, note, reference, quiet = _reference(clean, t, stats, settings, source)
+    stats: dict[int, np.ndarray] = {}
+    ref, init, note, reference, quiet = _reference(clean, t, windows, stats, settings, source)
     # An explicit k is the thesis's detector: s2 < k s2_init and nothing else.
     ks = K_GRID if settings.k is None else (float(settings.k),)
-    local = settings.k is None
+    local = settings.statistic if settings.k is None else None  # local ends, for M1 as used
     scorer = Scorer(acc_unit, g_in)
     tried: list[tuple[Candidate, Blocks]] = []
     for w in sorted(windows, reverse=True):
@@ -111,10 +113,10 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
 
     # The chosen setting at full resolution (the scan ran on bins).
     stat = stats[best.window]
-    q = local_factor(best.window) if local else None
+    q = local_factor(best.window, local) if local else None
     runs = still_runs(stat, best.k * ref, q, outliers)
     lengths = runs[:, 1] - runs[:, 0]
-    exact = Blocks.of(Prefix(acc, 1), runs[lengths >= best.min_len])
+    exact = Blocks.exact(acc, runs[lengths >= best.min_len])
     blocks = exact.blocks
     cands[chosen] = scorer.candidate(best.window, best.min_len, best.k, exact, force=True)
     reason = why(cands[chosen])
@@ -124,7 +126,7 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
                                        ("k", settings.k)) if v is None)
     tuning = Tuning(
         tuned=tuned, reference=reference, local_factor=q, quiet_level=quiet,
-        quiet_window=min(windows),
+        quiet_window=min(stats),
         candidates=tuple(cands), chosen=chosen, reason=reason,
         hold_s=float((np.median(exact.counts) + best.window) / rate) if len(blocks) else None,
         short_holds=short, min_hold_s=min_hold / rate)
@@ -135,26 +137,29 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
                      orientations=cands[chosen].orientations)
 
 
-def _reference(clean: np.ndarray, t: np.ndarray, stats: dict[int, np.ndarray],
-               settings: DetectSettings, source: str
+def _reference(clean: np.ndarray, t: np.ndarray, windows: list[int],
+               stats: dict[int, np.ndarray], settings: DetectSettings, source: str
                ) -> tuple[float, tuple[float, float] | None, str | None, str, float]:
     """The reference level s2_init, the interval it came from, a note for the user, where it
-    came from in words, and the quiet level (of the one statistic in ``stats``)."""
-    (wq, stat), = stats.items()
-    quiet = quiet_level(stat)
+    came from in words, and the quiet level. M1 goes into ``stats``: over the shortest
+    window when the quiet level is the reference (short windows fit in short holds), else
+    over the thesis's, which the scan needs first anyway."""
+    ref, init, note = initial_level(clean, t, settings.init or THESIS_INIT, settings.statistic,
+                                    source, slide=settings.init is not None)
+    w = min(windows) if ref is None else max(windows)
+    stats[w] = _statistic(clean, w, settings.statistic)
+    quiet = quiet_level(stats[w])
+    if ref is not None:
+        return ref, init, note, f"the initial still interval {init[0]:g}-{init[1]:g} s", quiet
     if not quiet > 0.0:
         raise ImucalError("the accelerometer is exactly constant over most of the recording, so "
                           "no noise level can be learned (quantised or synthetic data?)",
                           source=source, field="accelerometer")
-    ref, init, note = initial_level(clean, t, settings.init or THESIS_INIT, settings.statistic,
-                                    source, slide=settings.init is not None)
-    if ref is not None:
-        return ref, init, note, f"the initial still interval {init[0]:g}-{init[1]:g} s", quiet
     if note:
         note += ("; the noise level was learned from the quietest stretches of the recording "
                  "instead: start recordings with the sensor lying still")
     return quiet, None, note, (f"the quiet level: the lowest {QUIET_QUANTILE:.0%} of M1 over "
-                               f"{wq}-sample windows of the whole recording"), quiet
+                               f"{w}-sample windows of the whole recording"), quiet
 
 
 def _statistic(x: np.ndarray, window: int, statistic: str) -> np.ndarray:
@@ -163,14 +168,14 @@ def _statistic(x: np.ndarray, window: int, statistic: str) -> np.ndarray:
         return rolling_statistic(x, window, statistic)
 
 
-def _short_holds(stats: dict[int, np.ndarray], threshold: float, local: bool,
+def _short_holds(stats: dict[int, np.ndarray], threshold: float, local: str | None,
                  outliers: np.ndarray, min_len: int | None) -> tuple[int, int]:
     """How many still stretches, seen through the shortest window tried, were too short to
     make a block there, and the shortest a block can come from (``min_len`` still windows:
     ``min_len + w - 1`` samples)."""
     w = min(stats)
     shortest = min_len or min_len_for(w)
-    runs = still_runs(stats[w], threshold, local_factor(w) if local else None, outliers)
+    runs = still_runs(stats[w], threshold, local_factor(w, local) if local else None, outliers)
     lengths = runs[:, 1] - runs[:, 0]
     return int(np.sum((lengths >= 2) & (lengths < shortest))), shortest + w - 1
 
@@ -210,20 +215,39 @@ def still_runs(values: np.ndarray, threshold: float, local: float | None,
     runs = runs_of_true(mask)
     if local is None or len(runs) == 0:
         return runs
+    median = _run_medians(values, runs)
     lengths = runs[:, 1] - runs[:, 0]
-    label = np.repeat(np.arange(len(runs)), lengths)
-    idx = np.arange(int(lengths.sum())) + np.repeat(runs[:, 0] - np.cumsum(lengths) + lengths,
-                                                    lengths)
-    v = values[idx]
-    order = np.lexsort((v, label))  # by stretch, then by value: each stretch's median
-    first = np.cumsum(lengths) - lengths
-    median = v[order[first + (lengths - 1) // 2]]
-    mask[idx] = v < local * median[label]
+    idx = _run_indices(runs)
+    mask[idx] = values[idx] < local * np.repeat(median, lengths)
     return runs_of_true(mask)
 
 
+def _run_indices(runs: np.ndarray, step: int = 1) -> np.ndarray:
+    """Every ``step``-th index of each [start, end) run, concatenated in order."""
+    lengths = -(-(runs[:, 1] - runs[:, 0]) // step)
+    offsets = np.repeat(runs[:, 0] - (np.cumsum(lengths) - lengths) * step, lengths)
+    return offsets + np.arange(int(lengths.sum())) * step
+
+
+def _run_medians(values: np.ndarray, runs: np.ndarray) -> np.ndarray:
+    """The median of ``values`` over each run, from at most about 200,000 of them (M1 is
+    smooth over a window: every step-th value tells its median as well)."""
+    step = max(1, int((runs[:, 1] - runs[:, 0]).sum()) // 200_000)
+    lengths = -(-(runs[:, 1] - runs[:, 0]) // step)
+    v = values[_run_indices(runs, step)]
+    # One sort by run, then by value: the run's number plus its log value squeezed into
+    # [0, 0.5) (an argsort of floats is several times faster than a lexsort of two keys).
+    logv = np.log(np.maximum(v, np.finfo(float).tiny))
+    lo, hi = float(logv.min()), float(logv.max())
+    key = (logv - lo) * (0.5 / max(hi - lo, 1e-300))
+    key += np.repeat(np.arange(len(runs), dtype=float), lengths)
+    order = np.argsort(key)
+    first = np.cumsum(lengths) - lengths
+    return v[order[first + (lengths - 1) // 2]]
+
+
 def _scan(acc: np.ndarray, stat: np.ndarray, ref: float, ks: tuple[float, ...], window: int,
-          min_len: int, outliers: np.ndarray, local: bool, scorer: Scorer
+          min_len: int, outliers: np.ndarray, local: str | None, scorer: Scorer
           ) -> list[tuple[Candidate, Blocks]]:
     """Every k at one window, on bins of ``window / BIN_SAMPLES`` samples: a bin is still when
     its largest M1 is, so the blocks are the full-resolution ones trimmed by less than a bin
@@ -234,7 +258,7 @@ def _scan(acc: np.ndarray, stat: np.ndarray, ref: float, ks: tuple[float, ...], 
     padded = np.concatenate([stat, np.full(nb * d - n, np.inf)]) if nb * d > n else stat
     binmax = padded.reshape(nb, d).max(axis=1)
     pre = Prefix(acc, d)
-    q = local_factor(window) if local else None
+    q = local_factor(window, local) if local else None
     out = []
     for k in ks:
         runs = still_runs(binmax, k * ref, q, outliers, per=d)
