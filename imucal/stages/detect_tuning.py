@@ -93,7 +93,8 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     clean = without_outliers(acc, outliers)
 
     stats: dict[int, np.ndarray] = {}
-    ref, init, note, reference, quiet = _reference(clean, t, windows, stats, settings, source)
+    ref, init, note, reference, (quiet, wq) = _reference(clean, t, windows, stats, settings,
+                                                         source)
     # An explicit k is the thesis's detector: s2 < k s2_init and nothing else.
     ks = K_GRID if settings.k is None else (float(settings.k),)
     local = settings.statistic if settings.k is None else None  # local ends, for M1 as used
@@ -125,8 +126,7 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     tuned = tuple(name for name, v in (("window", settings.window), ("min_len", settings.min_len),
                                        ("k", settings.k)) if v is None)
     tuning = Tuning(
-        tuned=tuned, reference=reference, local_factor=q, quiet_level=quiet,
-        quiet_window=min(stats),
+        tuned=tuned, reference=reference, local_factor=q, quiet_level=quiet, quiet_window=wq,
         candidates=tuple(cands), chosen=chosen, reason=reason,
         hold_s=float((np.median(exact.counts) + best.window) / rate) if len(blocks) else None,
         short_holds=short, min_hold_s=min_hold / rate)
@@ -139,18 +139,19 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
 
 def _reference(clean: np.ndarray, t: np.ndarray, windows: list[int],
                stats: dict[int, np.ndarray], settings: DetectSettings, source: str
-               ) -> tuple[float, tuple[float, float] | None, str | None, str, float]:
+               ) -> tuple[float, tuple[float, float] | None, str | None, str, tuple[float, int]]:
     """The reference level s2_init, the interval it came from, a note for the user, where it
-    came from in words, and the quiet level. M1 goes into ``stats``: over the shortest
-    window when the quiet level is the reference (short windows fit in short holds), else
-    over the thesis's, which the scan needs first anyway."""
+    came from in words, and the quiet level with its window. M1 goes into ``stats``: over the
+    shortest window when the quiet level is the reference (short windows fit in short holds),
+    else over the thesis's, which the scan needs first anyway."""
     ref, init, note = initial_level(clean, t, settings.init or THESIS_INIT, settings.statistic,
                                     source, slide=settings.init is not None)
     w = min(windows) if ref is None else max(windows)
     stats[w] = _statistic(clean, w, settings.statistic)
     quiet = quiet_level(stats[w])
     if ref is not None:
-        return ref, init, note, f"the initial still interval {init[0]:g}-{init[1]:g} s", quiet
+        return (ref, init, note, f"the initial still interval {init[0]:g}-{init[1]:g} s",
+                (quiet, w))
     if not quiet > 0.0:
         raise ImucalError("the accelerometer is exactly constant over most of the recording, so "
                           "no noise level can be learned (quantised or synthetic data?)",
@@ -159,7 +160,7 @@ def _reference(clean: np.ndarray, t: np.ndarray, windows: list[int],
         note += ("; the noise level was learned from the quietest stretches of the recording "
                  "instead: start recordings with the sensor lying still")
     return quiet, None, note, (f"the quiet level: the lowest {QUIET_QUANTILE:.0%} of M1 over "
-                               f"{w}-sample windows of the whole recording"), quiet
+                               f"{w}-sample windows of the whole recording"), (quiet, w)
 
 
 def _statistic(x: np.ndarray, window: int, statistic: str) -> np.ndarray:
