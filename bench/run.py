@@ -147,7 +147,7 @@ def _patch_pipeline(clock: StageClock) -> list[str]:
     import imucal.pipeline as pl
     import imucal.stages.apply
 
-    stages = {"detect_static": "detect", "calibrate_accelerometer": "accel",
+    stages = {"tune_detector": "detect", "calibrate_accelerometer": "accel",
               "group_blocks": "group", "block_mean_cov": "gyro", "calibrate_gyroscope": "gyro",
               "quality_figures": "quality", "distinct_orientations": "quality"}
     missing = []

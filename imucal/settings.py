@@ -15,6 +15,9 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+# The thesis's initial still interval (method.md §1), s from the first sample: used when still.
+THESIS_INIT: tuple[float, float] = (0.5, 3.0)
+
 # L-curve grid (method.md §3): three points a decade from 1e-8 to 1e3.
 DEFAULT_LAMBDAS: tuple[float, ...] = tuple(10.0 ** (i * (11 / 33) - 8) for i in range(34))
 
@@ -24,12 +27,14 @@ class Settings:
     """Every setting of method.md, flat, with the thesis's defaults where it has one."""
 
     # --- static detector (§1) ---
-    # Variance window and shortest still block, in samples; None: the thesis's durations
-    # (1.01 s and 1.0 s, i.e. 101 and 100 samples at its 100 Hz) at the session's own rate.
+    # None: chosen from the recording (imucal.stages.detect_tuning; method.md §1); a value
+    # given always wins. Window and shortest still block in samples (thesis: 101 and 100 at
+    # 100 Hz), the threshold multiplier on the reference level (thesis: 2) and the initial
+    # still interval in s from the first sample (thesis: 0.5-3 s, used when it is still).
     window: int | None = None
     min_len: int | None = None
-    k: float = 2.0  # threshold multiplier on s2_init (thesis: 2)
-    init: tuple[float, float] = (0.5, 3.0)  # initial still interval, s from the first sample
+    k: float | None = None
+    init: tuple[float, float] | None = None
     statistic: str = "thesis"  # "thesis": M1, sum of squared variances; "imu_tk": their norm
     # --- grouping (§2) ---
     single_segment: bool = False  # imu_tk's behaviour: one segment for the whole session
@@ -60,7 +65,7 @@ class Settings:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        d["init"] = list(self.init)
+        d["init"] = None if self.init is None else list(self.init)
         d["lambdas"] = list(self.lambdas)
         return d
 
@@ -68,7 +73,7 @@ class Settings:
     def from_dict(cls, d: dict) -> Settings:
         """The inverse of :meth:`to_dict` (unknown keys are refused by the constructor)."""
         d = dict(d)
-        if "init" in d:
+        if d.get("init") is not None:
             d["init"] = tuple(d["init"])
         if "lambdas" in d:
             d["lambdas"] = tuple(d["lambdas"])
@@ -77,7 +82,8 @@ class Settings:
     @property
     def detect(self) -> DetectSettings:
         return DetectSettings(window=self.window, min_len=self.min_len, k=self.k,
-                              init=tuple(self.init), statistic=self.statistic)
+                              init=None if self.init is None else tuple(self.init),
+                              statistic=self.statistic)
 
     @property
     def group(self) -> GroupSettings:
@@ -103,8 +109,8 @@ class Settings:
 class DetectSettings:
     window: int | None
     min_len: int | None
-    k: float
-    init: tuple[float, float]
+    k: float | None
+    init: tuple[float, float] | None
     statistic: str
 
 

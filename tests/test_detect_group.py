@@ -67,12 +67,26 @@ def test_wander_ratio_tells_still_from_moving():
 
 
 @pytest.mark.parametrize("still_at_start", [0.0, 1.0, 2.0])
-def test_moving_start_learns_the_noise_from_the_first_still_stretch(still_at_start):
+def test_moving_start_learns_the_noise_from_the_quiet_stretches(still_at_start):
     """Without a still start the threshold learned from 0.5-3 s would be motion's: blocks would
     swallow turns and the calibration be wrong by tens of mg (measured: 51 mg, 21 degrees).
-    The first still stretch is used instead, and the user is told."""
+    The quiet level of the whole recording is used instead, and the user is told."""
     session, truth = make_session(poses=30, seed=2, init_still=still_at_start)
     r = imucal.calibrate(session)
+    assert r.detection.init is None
+    assert "quiet level" in r.detection.tuning.reference
+    assert any("moves during the initial still interval 0.5-3 s" in w.message
+               and "quietest stretches" in w.message for w in r.warnings)
+    assert r.quality.static_norm_rms_mg.after < 0.5
+    assert r.quality.gravity_angle_rms_deg.after < 0.2
+    assert len(r.detection.blocks) >= 29
+
+
+@pytest.mark.parametrize("still_at_start", [0.0, 1.0, 2.0])
+def test_moving_start_given_interval_slides_to_the_first_still_stretch(still_at_start):
+    """An interval the user gives (--init) that moves: the first still stretch as long."""
+    session, truth = make_session(poses=30, seed=2, init_still=still_at_start)
+    r = imucal.calibrate(session, init=(0.5, 3.0))
     assert r.detection.init != (0.5, 3.0)
     assert r.detection.init[0] >= still_at_start  # after the first turn began
     assert any("moves during the initial still interval 0.5-3 s" in w.message

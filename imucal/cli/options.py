@@ -22,7 +22,14 @@ def _settings_defaults() -> dict[str, Any]:
     return dataclasses.asdict(Settings())
 
 
+def _thesis_init() -> tuple[float, float]:
+    from imucal.settings import THESIS_INIT
+
+    return THESIS_INIT
+
+
 DEFAULTS: dict[str, Any] = _settings_defaults()
+THESIS_INIT = _thesis_init()  # the initial still interval when --init is not given
 SETTINGS = tuple(DEFAULTS)  # every setting's name: its flag, and its key in calib.json
 ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 
@@ -185,23 +192,26 @@ VerboseOpt = Annotated[bool, typer.Option(
 
 WindowOpt = Annotated[int | None, typer.Option(
     "--window", metavar="N", callback=at_least(3), rich_help_panel=_DET, show_default=False,
-    help="Variance window in samples [default: 1.01 s at the session's rate].")]
+    help="Variance window in samples [default: chosen from the recording: 1.01 s at its rate, "
+         "shorter for short holds].")]
 MinLenOpt = Annotated[int | None, typer.Option(
     "--min-len", metavar="N", callback=at_least(1), rich_help_panel=_DET, show_default=False,
-    help="Shortest static block in samples [default: 1 s at the session's rate].")]
-KOpt = Annotated[float, typer.Option(
-    "--k", metavar="K", callback=positive, rich_help_panel=_DET,
-    help="Threshold multiplier: still where s2 < k * s2_init.")]
+    help="Shortest static block in samples [default: chosen with the window, 1 s for "
+         "1.01 s].")]
+KOpt = Annotated[float | None, typer.Option(
+    "--k", metavar="K", callback=positive, rich_help_panel=_DET, show_default=False,
+    help="Threshold multiplier: still where s2 < k * s2_init [default: chosen from the "
+         "recording by a cross-validated error].")]
 InitOpt = Annotated[tuple[float, float] | None, typer.Option(
     "--init", metavar="START END", rich_help_panel=_DET, show_default=False,
-    help="Initial still interval, seconds from the first sample "
-         f"[default: {DEFAULTS['init'][0]:g} {DEFAULTS['init'][1]:g}].")]
+    help="Initial still interval, seconds from the first sample [default: "
+         f"{THESIS_INIT[0]:g} {THESIS_INIT[1]:g} when still there, else the quietest stretches].")]
 InitStartOpt = Annotated[float | None, typer.Option(
     "--init-start", metavar="S", rich_help_panel=_DET, show_default=False,
-    help=f"Start of the initial still interval [default: {DEFAULTS['init'][0]:g}].")]
+    help=f"Start of the initial still interval [default: {THESIS_INIT[0]:g}].")]
 InitEndOpt = Annotated[float | None, typer.Option(
     "--init-end", metavar="S", rich_help_panel=_DET, show_default=False,
-    help=f"End of the initial still interval [default: {DEFAULTS['init'][1]:g}].")]
+    help=f"End of the initial still interval [default: {THESIS_INIT[1]:g}].")]
 StatisticOpt = Annotated[str, typer.Option(
     "--statistic", metavar="thesis|imu_tk", callback=_one_of("thesis", "imu_tk"),
     rich_help_panel=_DET,
@@ -329,13 +339,14 @@ def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
     if init is not None and (init_start is not None or init_end is not None):
         raise usage_error("give the initial interval either as --init START END or as "
                           "--init-start/--init-end, not both", "'--init'")
-    start, end = init if init is not None else DEFAULTS["init"]
+    start, end = init if init is not None else THESIS_INIT
     start = start if init_start is None else init_start
     end = end if init_end is None else init_end
     if not (math.isfinite(start) and math.isfinite(end) and 0 <= start < end):
         raise usage_error(f"the initial still interval must satisfy 0 <= START < END, got "
                           f"{start:g} {end:g}", "'--init'")
-    return {"window": window, "min_len": min_len, "k": k, "init": (start, end),
+    given = init is not None or init_start is not None or init_end is not None
+    return {"window": window, "min_len": min_len, "k": k, "init": (start, end) if given else None,
             "statistic": statistic, "single_segment": single_segment,
             "split_alpha": split_alpha, "delta": delta,
             "min_blocks": min_blocks, "g": g, "lam": lam if lam == "auto" else float(lam),

@@ -121,6 +121,7 @@ def result_to_dict(result: Result) -> dict:
         "source": {"file": s.source, "sha256": s.sha256},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in result.settings.to_dict().items()},
+        "detector": _detector_dict(result),
         "grouping": _grouping_dict(result.grouping),
         "segments": segs,
         "static_blocks": [[_f(a), _f(b)] for a, b in result.block_times],
@@ -154,6 +155,24 @@ def _gyro_cv_keys(fit: GyroFit) -> dict:
                                           "optimised_bias": _f(cv.rms_optimised_bias)},
                 "note": "each rotation between still poses predicted by the fit without its "
                         "fold (K-fold, folds dealt in turn); null: that fit not made"}}
+
+
+def _detector_dict(result: Result) -> dict:
+    """The static detector's values, and how they were chosen (method.md §1)."""
+    det = result.detection
+    tun = det.tuning
+    out = {"window": det.window, "min_len": det.min_len, "k": _f(det.k),
+           "threshold": _f(det.threshold), "reference_level": _f(det.s2_init),
+           "initial_interval": None if det.init is None else [_f(x) for x in det.init],
+           "outliers": [int(i) for i in det.outliers]}
+    if tun is not None:
+        out |= {"tuned": list(tun.tuned), "reference": tun.reference,
+                "local_factor": _f(tun.local_factor), "quiet_level": _f(tun.quiet_level),
+                "hold_s": _f(tun.hold_s), "reason": tun.reason, "chosen": tun.chosen,
+                "candidates": [{"window": c.window, "min_len": c.min_len, "k": _f(c.k),
+                                "blocks": c.blocks, "orientations": c.orientations,
+                                "score_mg": _f(c.score_mg)} for c in tun.candidates]}
+    return out
 
 
 def save_calibration(result: Result, path: str | os.PathLike) -> None:
