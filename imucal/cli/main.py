@@ -72,6 +72,11 @@ def main(argv: list[str] | None = None, *, command: str | None = None,
 
     with contextlib.suppress(ValueError):  # not the main thread (tests): keep the default
         signal.signal(signal.SIGTERM, _on_sigterm)
+    # A terminal or PYTHONIOENCODING that cannot show a character (the summary's file names,
+    # a unit) gets an escape for it, not a UnicodeEncodeError after the files were written.
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            stream.reconfigure(errors="backslashreplace")
     debug = os.environ.get("IMUCAL_DEBUG", "") not in ("", "0")
     if not debug:
         warnings.showwarning = functools.partial(_show_warning, prog=prog)

@@ -182,45 +182,109 @@ def save_calibration(result: Result, path: str | os.PathLike) -> None:
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration:
-    """Read a calibration file back into a :class:`Calibration` that can ``apply`` a session."""
+    """Read a calibration file back into a :class:`Calibration` that can ``apply`` a session.
+
+    Every parameter is checked here, so that a hand-edited or damaged file is one clear error
+    and never a calibration that silently zeroes or scrambles a signal: T finite and
+    invertible, K finite and non-zero, b finite (M2, M4); g finite and > 0; the units known;
+    the segments in time order; the format version an integer this imucal reads.
+    """
     name = str(path)
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ImucalError("file not found", source=name) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except RecursionError:
+        raise ImucalError("not a calibration file: JSON nested too deeply", source=name
+                          ) from None
+    except OSError as e:
+        raise ImucalError(f"cannot be read ({e.strerror or e.__class__.__name__})", source=name
+                          ) from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ImucalError(f"not a readable JSON calibration file ({e.__class__.__name__})",
                           source=name) from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ImucalError(f"expected format {FORMAT!r}", source=name, field="format")
-    if data.get("format_version") != FORMAT_VERSION:
-        raise ImucalError(f"format_version {data.get('format_version')!r} is not supported "
-                          f"(this imucal reads version {FORMAT_VERSION})", source=name,
-                          field="format_version")
+    version = data.get("format_version")
+    if type(version) is not int or version != FORMAT_VERSION:  # bool is an int: not a version
+        raise ImucalError(f"format_version {version!r} is not supported (this imucal reads "
+                          f"version {FORMAT_VERSION})", source=name, field="format_version")
+    field = "units"
     try:
         units = data["units"]
+        cal_units = (_unit(units, "accelerometer_raw", ACC_UNITS_RAW),
+                     _unit(units, "accelerometer", ACC_UNITS),
+                     _unit(units, "gyroscope_raw", GYRO_UNITS_RAW, optional=True))
+        field = "units.g"
+        g = _number(units["g"], "g")
+        if not g > 0:
+            raise ValueError(f"g must be > 0, got {g:g}")
         segments = []
         for i, seg in enumerate(data["segments"]):
+            field = f"segments[{i}]"
+            t0, t1 = _number(seg["t_start"], "t_start"), _number(seg["t_end"], "t_end")
+            if t1 < t0 or (segments and t0 < segments[-1].t_end):
+                raise ValueError("the segments' t_start and t_end are not in time order")
+            field = f"segments[{i}].accelerometer"
             acc = _model(seg["accelerometer"])
+            field = f"segments[{i}].gyroscope"
             gyro = _model(seg["gyroscope"]) if seg.get("gyroscope") else None
-            segments.append(SegmentModels(t_start=float(seg["t_start"]),
-                                          t_end=float(seg["t_end"]), acc=acc, gyro=gyro))
-            del i
+            segments.append(SegmentModels(t_start=t0, t_end=t1, acc=acc, gyro=gyro))
         if not segments:
+            field = "segments"
             raise ValueError("no segments")
-        return Calibration(segments=tuple(segments), acc_unit_raw=units["accelerometer_raw"],
-                           acc_unit=units["accelerometer"], g=float(units["g"]),
-                           gyro_unit_raw=units.get("gyroscope_raw"))
-    except (KeyError, TypeError, ValueError, IndexError) as e:
-        raise ImucalError(f"malformed calibration ({e.__class__.__name__}: {e})", source=name,
-                          field="segments") from None
+        return Calibration(segments=tuple(segments), acc_unit_raw=cal_units[0],
+                           acc_unit=cal_units[1], g=g, gyro_unit_raw=cal_units[2])
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
+        what = f"missing {e}" if isinstance(e, KeyError) else str(e)
+        raise ImucalError(f"malformed calibration: {what}", source=name, field=field) from None
+
+
+ACC_UNITS_RAW = ("g", "m/s^2", "counts")
+ACC_UNITS = ("g", "m/s^2")
+GYRO_UNITS_RAW = ("rad/s", "deg/s", "counts")
+
+
+def _unit(units: dict, key: str, known: tuple[str, ...], optional: bool = False) -> str | None:
+    value = units.get(key) if optional else units[key]
+    if (value is None and optional) or value in known:
+        return value
+    raise ValueError(f"{key} {value!r} is not one of {', '.join(known)}")
+
+
+def _number(x: Any, what: str) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise ValueError(f"{what} must be a number, got {x!r}")
+    v = float(x)
+    if not math.isfinite(v):
+        raise ValueError(f"{what} must be finite, got {v!r}")
+    return v
 
 
 def _model(d: dict) -> SensorModel:
-    T = np.array(d["T"], dtype=float)
-    K = np.array(d["K"], dtype=float)
-    b = np.array(d["b"], dtype=float)
-    if T.shape != (3, 3) or K.shape != (3,) or b.shape != (3,) or not (
-            np.all(np.isfinite(T)) and np.all(np.isfinite(K)) and np.all(np.isfinite(b))):
-        raise ValueError("T must be 3x3, K and b 3 finite numbers")
-    return SensorModel(T=T, K=K, b=b)
+    """One sensor's T, K, b (M2, M4), refused unless the model is a bijection with finite
+    numbers: a singular T or a zero scale would map every sample onto a plane or a line."""
+    arrays = {}
+    for key, shape in (("T", (3, 3)), ("K", (3,)), ("b", (3,))):
+        raw = d[key]
+        if _has_bool(raw):
+            raise ValueError(f"{key} must hold numbers, not true/false")
+        a = np.array(raw, dtype=float)
+        if a.shape != shape:
+            raise ValueError(f"{key} must be {'3x3' if key == 'T' else '3 numbers'}, got shape "
+                             f"{a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{key} must be finite numbers (null is not a number)")
+        arrays[key] = a
+    if np.any(arrays["K"] == 0):
+        raise ValueError("a scale factor in K is zero")
+    cond = np.linalg.cond(arrays["T"])
+    if not cond < 1e12:  # beyond: T's inverse loses more than 12 of double's 16 digits
+        raise ValueError(f"T is singular (condition number {cond:.3g})")
+    return SensorModel(T=arrays["T"], K=arrays["K"], b=arrays["b"])
+
+
+def _has_bool(x: Any) -> bool:
+    if isinstance(x, list):
+        return any(_has_bool(v) for v in x)
+    return isinstance(x, bool)
