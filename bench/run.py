@@ -401,7 +401,7 @@ def gyro_problem(minutes: float, acc_rate: float = 100.0, gyro_rate: float = 100
 
     import imucal
     from imucal.models import GYRO_THETA0, SensorModel, gyro_T
-    from imucal.stages.gyro import Transitions
+    from imucal.stages.gyro_transitions import Transitions
     from imucal.synth import make_session
 
     session, _ = make_session(poses=max(int(round(minutes * 12)), 2), seed=1, still=3.0,

@@ -57,7 +57,23 @@ def main(argv: list[str] | None = None, *, command: str | None = None,
     """Run the command line; return the exit code (never a traceback for the user).
 
     ``command`` runs one subcommand directly under the name ``prog`` (``imucal-view`` is
-    ``imucal view``)."""
+    ``imucal view``). The process-wide hooks a run installs (the SIGTERM handler, the one-line
+    warnings) are put back when it returns, so a caller in the same process (a test, a
+    notebook, a batch) keeps its own."""
+    import signal
+    import warnings
+
+    old_term = signal.getsignal(signal.SIGTERM)
+    old_show = warnings.showwarning
+    try:
+        return _main(argv, command=command, prog=prog)
+    finally:
+        warnings.showwarning = old_show
+        with contextlib.suppress(ValueError, TypeError):  # not the main thread: never set
+            signal.signal(signal.SIGTERM, old_term)
+
+
+def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
     import warnings
 
     args = sys.argv[1:] if argv is None else list(argv)
