@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,7 +18,7 @@ import numpy as np
 from imucal.errors import ImucalError
 from imucal.io.atomic import write_text_atomic
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
-from imucal.stages.apply import Calibration, SegmentModels
+from imucal.stages.apply import Calibration
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -114,10 +115,7 @@ def result_to_dict(result: Result) -> dict:
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "conventions": CONVENTIONS,
-        "units": {"accelerometer_raw": s.acc_unit, "accelerometer": result.calibration.acc_unit,
-                  "g": _f(result.calibration.g),
-                  "gyroscope_raw": s.gyro_unit if s.has_gyro else None,
-                  "gyroscope": "rad/s" if s.has_gyro else None, "time": "s"},
+        "units": result.calibration.to_dict()["units"],
         "source": {"file": s.source, "sha256": s.sha256},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in result.settings.to_dict().items()},
@@ -203,88 +201,46 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ImucalError(f"not a readable JSON calibration file ({e.__class__.__name__})",
                           source=name) from None
+    return calibration_from_dict(data, source=name)
+
+
+def calibration_to_dict(cal: Calibration) -> dict:
+    """A calibration file with the calibration alone (no run behind it): what
+    :func:`calibration_from_dict` and ``imucal apply`` read."""
+    return {"format": FORMAT, "format_version": FORMAT_VERSION, "conventions": CONVENTIONS,
+            **cal.to_dict()}
+
+
+# Upgrades of older calibration files: MIGRATIONS[n] turns a version-n dict into version n + 1.
+# A future format_version 2 adds its entry MIGRATIONS[1] here, and every version-1 file still
+# loads through it; a file newer than this imucal is refused, never guessed at.
+MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
+
+
+def migrate(data: dict, source: str = "calibration") -> dict:
+    """``data`` (a parsed calibration file) brought to :data:`FORMAT_VERSION`."""
     if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise ImucalError(f"expected format {FORMAT!r}", source=name, field="format")
+        raise ImucalError(f"expected format {FORMAT!r}", source=source, field="format")
     version = data.get("format_version")
-    if type(version) is not int or version != FORMAT_VERSION:  # bool is an int: not a version
+    if type(version) is not int or not 1 <= version <= FORMAT_VERSION or (
+            version < FORMAT_VERSION and version not in MIGRATIONS):
+        # bool is an int in Python: true is not a version
         raise ImucalError(f"format_version {version!r} is not supported (this imucal reads "
-                          f"version {FORMAT_VERSION})", source=name, field="format_version")
-    field = "units"
+                          f"version {FORMAT_VERSION})", source=source, field="format_version")
+    while version < FORMAT_VERSION:
+        data = MIGRATIONS[version](data)
+        version += 1
+        data["format_version"] = version
+    return data
+
+
+def calibration_from_dict(data: dict, source: str = "calibration") -> Calibration:
+    """The :class:`Calibration` in a parsed calibration file, migrated to this format version
+    and checked parameter by parameter (:meth:`Calibration.from_dict`)."""
+    data = migrate(data, source)
     try:
-        units = data["units"]
-        cal_units = (_unit(units, "accelerometer_raw", ACC_UNITS_RAW),
-                     _unit(units, "accelerometer", ACC_UNITS),
-                     _unit(units, "gyroscope_raw", GYRO_UNITS_RAW, optional=True))
-        field = "units.g"
-        g = _number(units["g"], "g")
-        if not g > 0:
-            raise ValueError(f"g must be > 0, got {g:g}")
-        segments = []
-        for i, seg in enumerate(data["segments"]):
-            field = f"segments[{i}]"
-            t0, t1 = _number(seg["t_start"], "t_start"), _number(seg["t_end"], "t_end")
-            if t1 < t0 or (segments and t0 < segments[-1].t_end):
-                raise ValueError("the segments' t_start and t_end are not in time order")
-            field = f"segments[{i}].accelerometer"
-            acc = _model(seg["accelerometer"])
-            field = f"segments[{i}].gyroscope"
-            gyro = _model(seg["gyroscope"]) if seg.get("gyroscope") else None
-            segments.append(SegmentModels(t_start=t0, t_end=t1, acc=acc, gyro=gyro))
-        if not segments:
-            field = "segments"
-            raise ValueError("no segments")
-        return Calibration(segments=tuple(segments), acc_unit_raw=cal_units[0],
-                           acc_unit=cal_units[1], g=g, gyro_unit_raw=cal_units[2])
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
-        what = f"missing {e}" if isinstance(e, KeyError) else str(e)
-        raise ImucalError(f"malformed calibration: {what}", source=name, field=field) from None
+        return Calibration.from_dict(data)
+    except ImucalError as e:
+        raise ImucalError(e.problem, source=source, field=e.field) from None
 
 
-ACC_UNITS_RAW = ("g", "m/s^2", "counts")
-ACC_UNITS = ("g", "m/s^2")
-GYRO_UNITS_RAW = ("rad/s", "deg/s", "counts")
-
-
-def _unit(units: dict, key: str, known: tuple[str, ...], optional: bool = False) -> str | None:
-    value = units.get(key) if optional else units[key]
-    if (value is None and optional) or value in known:
-        return value
-    raise ValueError(f"{key} {value!r} is not one of {', '.join(known)}")
-
-
-def _number(x: Any, what: str) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        raise ValueError(f"{what} must be a number, got {x!r}")
-    v = float(x)
-    if not math.isfinite(v):
-        raise ValueError(f"{what} must be finite, got {v!r}")
-    return v
-
-
-def _model(d: dict) -> SensorModel:
-    """One sensor's T, K, b (M2, M4), refused unless the model is a bijection with finite
-    numbers: a singular T or a zero scale would map every sample onto a plane or a line."""
-    arrays = {}
-    for key, shape in (("T", (3, 3)), ("K", (3,)), ("b", (3,))):
-        raw = d[key]
-        if _has_bool(raw):
-            raise ValueError(f"{key} must hold numbers, not true/false")
-        a = np.array(raw, dtype=float)
-        if a.shape != shape:
-            raise ValueError(f"{key} must be {'3x3' if key == 'T' else '3 numbers'}, got shape "
-                             f"{a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{key} must be finite numbers (null is not a number)")
-        arrays[key] = a
-    if np.any(arrays["K"] == 0):
-        raise ValueError("a scale factor in K is zero")
-    cond = np.linalg.cond(arrays["T"])
-    if not cond < 1e12:  # beyond: T's inverse loses more than 12 of double's 16 digits
-        raise ValueError(f"T is singular (condition number {cond:.3g})")
-    return SensorModel(T=arrays["T"], K=arrays["K"], b=arrays["b"])
-
-
-def _has_bool(x: Any) -> bool:
-    if isinstance(x, list):
-        return any(_has_bool(v) for v in x)
-    return isinstance(x, bool)
