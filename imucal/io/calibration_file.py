@@ -16,8 +16,10 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.atomic import write_text_atomic
+from imucal.io.noise_json import noise_to_dict
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
 from imucal.stages.apply import Calibration, SegmentModels
+from imucal.stages.noise import still_noise
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -114,6 +116,9 @@ def result_to_dict(result: Result) -> dict:
                                                               "after": _f(ga[1])},
             "notes": list(q.notes),
         },
+        # The sensor's noise from the still blocks (white noise density per axis; bias
+        # instability and random walk only where the blocks are long enough to show them).
+        "noise": noise_to_dict(still_noise(result.calibrated, result.block_times)),
         "warnings": list(result.warnings),
     }
 
