@@ -130,48 +130,51 @@ def allan_variance(x: np.ndarray, *, overlap: int | None = None,
 
 
 def pooled_allan_variance(x: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-                          min_clusters: float = 3.0) -> AllanCurve:
+                          min_clusters: float = 3.0, chunk: int = 1 << 16) -> AllanCurve:
     """Overlapping Allan variance pooled over the runs ``[starts[i], ends[i])`` of ``x``
     (n, k): every cluster lies inside one run, every start point counts once (fully
     overlapping). Lags go up to the longest run / ``min_clusters``.
 
-    Vectorised: the runs are packed end to end, one running sum over the packed samples, and
-    per lag a mask of the start points whose three cluster boundaries stay in their run.
+    Vectorised: the runs are packed end to end into one running sum; per lag, a slice of
+    start points at a time (``chunk``: bounded temporaries) with a mask of those whose
+    clusters stay in their run.
     """
     x = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
     starts = np.asarray(starts, dtype=np.int64)
     ends = np.asarray(ends, dtype=np.int64)
+    ok = ends > starts
+    starts, ends = starts[ok], ends[ok]
     lengths = ends - starts
-    ok = lengths > 0
-    starts, ends, lengths = starts[ok], ends[ok], lengths[ok]
     k = x.shape[1]
+    empty = np.zeros(0, np.int64)
     if len(lengths) == 0:
-        return AllanCurve(np.zeros(0, np.int64), np.zeros((0, k)), np.zeros(0, np.int64),
-                          np.zeros(0, np.int64), 0)
-    idx = np.concatenate([np.arange(a, b) for a, b in zip(starts, ends)])
-    packed = x[idx]
+        return AllanCurve(empty, np.zeros((0, k)), empty, empty, 0)
+    n = int(lengths.sum())
     run_start = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    # Each run centred on its own mean: a constant within a run leaves the second differences
-    # unchanged, and the running sum stays small (no digits lost).
-    packed -= np.repeat(np.add.reduceat(packed, run_start, axis=0) / lengths[:, None], lengths,
-                        axis=0)
-    S = np.vstack([np.zeros((1, k)), np.cumsum(packed, axis=0)])  # S_0 .. S_n
-    # For each start point q (0..n): the end of its run (position in S).
-    owner = np.repeat(np.arange(len(lengths)), lengths)
-    run_end = (run_start + lengths)[owner]
-    n = len(packed)
+    S = np.zeros((n + 1, k))  # S_0 .. S_n of the packed runs
+    for a, b, p in zip(starts, ends, run_start):
+        seg = S[p + 1:p + 1 + b - a]
+        np.subtract(x[a:b], x[a:b].mean(axis=0), out=seg)  # centred: no digits lost, and a
+        # constant within a run leaves its second differences unchanged
+    np.cumsum(S[1:], axis=0, out=S[1:])
+    # Samples from each start point to the end of its run.
+    remaining = np.repeat(run_start + lengths, lengths) - np.arange(n)
     longest = int(lengths.max())
     lags, avar, terms = [], [], []
     m = 1
     while m * min_clusters <= longest:
-        q = np.arange(n - 2 * m + 1) if n >= 2 * m else np.zeros(0, np.int64)
-        valid = q + 2 * m <= run_end[np.minimum(q, n - 1)]
-        q = q[valid]
-        if len(q):
-            d = S[q + 2 * m] - 2.0 * S[q + m] + S[q]
+        total, count = np.zeros(k), 0
+        for lo in range(0, n - 2 * m + 1, chunk):
+            hi = min(lo + chunk, n - 2 * m + 1)
+            valid = remaining[lo:hi] >= 2 * m
+            d = S[lo + 2 * m:hi + 2 * m] - 2.0 * S[lo + m:hi + m]
+            d += S[lo:hi]
+            total += np.einsum("ij,ij,i->j", d, d, valid.astype(np.float64))
+            count += int(np.count_nonzero(valid))
+        if count:
             lags.append(m)
-            avar.append(np.einsum("ij,ij->j", d, d) / (2.0 * m * m * len(q)))
-            terms.append(len(q))
+            avar.append(total / (2.0 * m * m * count))
+            terms.append(count)
         m *= 2
     lags_a = np.asarray(lags, dtype=np.int64)
     return AllanCurve(lags=lags_a, avar=np.asarray(avar).reshape(-1, k),
