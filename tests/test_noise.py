@@ -325,3 +325,9 @@ def test_noise_recording_reads_back(tmp_path):
             found[name] = np.array(batch.column(col).to_pylist()[0], dtype=float)
     assert np.allclose(found["tau_s"], data["accelerometer"]["allan_deviation"]["tau_s"])
     assert np.allclose(found["white"], data["accelerometer"]["white_noise_density"])
+
+
+def test_a_recording_that_moves_is_called_out(sample_session_path):
+    rep = measure_noise(sample_session_path, gyro_unit="rad/s")
+    assert any("does not look still" in n for n in rep.notes)
+    assert any(".mat files are read whole" in n for n in rep.notes)

@@ -148,6 +148,15 @@ def _write_outputs(data: dict, block: dict, out: Path | None, kalibr: Path | Non
     return written
 
 
+def _value(sn: dict, key: str, i: int) -> str:
+    """``1.23e-4 unit (±5 %)``, or ``n/a`` for a figure the data do not determine."""
+    v = sn[key][i]
+    if v is None:
+        return "n/a"
+    err = (sn.get(key + "_rel_err") or [None] * 3)[i]
+    return f"{v:.4g} {sn[key + '_unit']}" + (f" (±{100 * err:.2g} %)" if err else "")
+
+
 def _noise_summary(data: dict, block: dict, knotes: list[str], written: list[str]) -> str:
     lines = [f"source          {data['source']}"]
     for key in ("accelerometer", "gyroscope"):
@@ -158,11 +167,9 @@ def _noise_summary(data: dict, block: dict, knotes: list[str], written: list[str
         lines.append(f"{key:<15} {n} samples at {sn['rate_hz']:.6g} Hz "
                      f"({n / sn['rate_hz']:.1f} s), {sn['unit']}")
         for i, axis in enumerate("xyz"):
-            lines.append(
-                f"  {axis}  white {fmt(sn['white_noise_density'][i], '.4g')} "
-                f"{sn['white_noise_density_unit']}   bias instability "
-                f"{fmt(sn['bias_instability'][i], '.4g')} {sn['bias_instability_unit']}   "
-                f"random walk {fmt(sn['random_walk'][i], '.4g')} {sn['random_walk_unit']}")
+            lines.append(f"  {axis}  white {_value(sn, 'white_noise_density', i)}   bias "
+                         f"instability {_value(sn, 'bias_instability', i)}   random walk "
+                         f"{_value(sn, 'random_walk', i)}")
     lines.append("kalibr imu.yaml")
     lines += [f"  {k}: {fmt(v, '.6g')}" for k, v in block.items()]
     notes = list(data.get("notes", [])) + knotes

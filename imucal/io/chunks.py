@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 import tempfile
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -133,7 +133,9 @@ def iter_chunks(path: str | os.PathLike, *, gyro_path: str | os.PathLike | None 
     accelerometer unit is given to the later ones, so a guess is made once."""
     plans = [_plan(Path(path))] + ([_plan(Path(gyro_path))] if gyro_path is not None else [])
     if any(p.kind == "whole" for p in plans):
-        yield load_session(path, gyro_path=gyro_path, **load_kw)
+        sess = load_session(path, gyro_path=gyro_path, **load_kw)
+        yield replace(sess, notes=sess.notes + ("MATLAB .mat files are read whole, not in "
+                                                "chunks: memory grows with the recording",))
         return
     n = max(1, max(-(-p.size // chunk_bytes) if p.kind == "text" else
                    -(-p.size // max(1, chunk_bytes // 64)) for p in plans))

@@ -26,6 +26,7 @@ from imucal.numerics.allan import pooled_allan_variance as _pooled
 from imucal.stages.apply import CalibratedSignals
 
 AXES = ("x", "y", "z")
+MAX_STILL_DRIFT = 0.01  # of |g|: above it the recording is not still (see StreamingNoise)
 # unit of the signal -> (white noise density, random walk) units
 DENSITY_UNITS = {
     "g": ("g/sqrt(Hz)", "g/s/sqrt(Hz)"),
@@ -150,6 +151,16 @@ class StreamingNoise:
                 notes.append(f"{sensor}: {int(gaps)} gaps longer than 1.5 sample periods; the "
                              f"estimator assumes even sampling at {rate:.6g} Hz")
             curve = self.acc[sensor].curve()
+            centre = self.acc[sensor].centre
+            if sensor == "accelerometer" and len(curve.lags) and centre is not None:
+                # A still accelerometer's mean drifts by far less than 1 % of |g| (bias
+                # instability of MEMS parts: 0.01-1 mg); a turn moves it by tens of percent.
+                moved = float(np.sqrt(curve.avar[-1].max()) / max(np.linalg.norm(centre), 1e-300))
+                if moved > MAX_STILL_DRIFT:
+                    notes.append(f"the recording does not look still: the accelerometer's "
+                                 f"Allan deviation at tau = {curve.lags[-1] / rate:.3g} s is "
+                                 f"{100 * moved:.2g} % of its mean magnitude; the figures "
+                                 "measure the motion")
             if len(curve.lags):
                 out[sensor] = sensor_noise(sensor, self.units[sensor] or "", rate, curve)
         return NoiseReport(accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
