@@ -21,6 +21,10 @@ The fit (IEEE 952 Annex C, the sum of independent noise terms) is linear in its 
 ``N`` is the line of slope -1/2 in log-log evaluated at tau = 1 s, ``K`` the line of slope +1/2
 at tau = 3 s; the flat minimum of the deviation divided by 0.664 is the bias instability.
 Nothing here knows what the signal measures.
+
+Why not allantools (PyPI, maintained, 2024.6, LGPL-3): its ``oadev`` takes the whole signal as
+one in-memory array; hours at 1 kHz must stream, which needs the running-sum form above. Its
+textbook result is what the tests compare against (written out there, not imported).
 """
 
 from __future__ import annotations
