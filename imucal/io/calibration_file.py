@@ -17,8 +17,10 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.atomic import write_text_atomic
+from imucal.io.noise_json import noise_to_dict
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
 from imucal.stages.apply import Calibration
+from imucal.stages.noise import still_noise
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -134,6 +136,9 @@ def result_to_dict(result: Result) -> dict:
                 "cross_validated": _f(q.gravity_angle_cv_deg)},
             "notes": list(q.notes),
         },
+        # The sensor's noise from the still blocks (white noise density per axis; bias
+        # instability and random walk only where the blocks are long enough to show them).
+        "noise": noise_to_dict(still_noise(result.calibrated, result.block_times)),
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
     }
 
