@@ -1,6 +1,7 @@
-"""The calibration store: add/list/get round trips, --at and the age warning, the index
-rebuilt from the folder against the one kept incrementally, two processes adding at once,
-imucal batch --store, and one-line errors for bad input."""
+"""The calibration store, drift and the fleet report: add/list/get round trips, --at and the
+age warning, the index rebuilt from the folder against the one kept incrementally, two
+processes adding at once, drift of two devices made by imucal.synth read back from the .rrd,
+a fleet report that flags the one unit far out of spec, and one-line errors for bad input."""
 
 from __future__ import annotations
 
@@ -235,6 +236,8 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from imucal.fleet.store import add
 store, calib, go = sys.argv[1], sys.argv[2], Path(sys.argv[3])
+import imucal.fleet.index, imucal.io.calibration_file, polars  # noqa: E401  (imports done)
+Path(sys.argv[4]).touch()
 while not go.exists():
     time.sleep(0.005)
 t0 = datetime(2024, 6, 1, tzinfo=timezone.utc)
@@ -248,9 +251,14 @@ def test_two_processes_adding_at_once_lose_nothing(lab, tmp_path) -> None:
     contested) and both keep the index: 30 files, 30 index rows."""
     store, go = tmp_path / "store", tmp_path / "go"
     calibs = [lab["calibs"][("devA", 0)], lab["calibs"][("devB", 0)]]
-    procs = [subprocess.Popen([sys.executable, "-c", ADDER, str(store), str(c), str(go)],
-                              stderr=subprocess.PIPE, text=True) for c in calibs]
-    time.sleep(2.0)  # both past their imports, waiting for the start
+    ready = [tmp_path / f"ready{i}" for i in range(2)]
+    procs = [subprocess.Popen([sys.executable, "-c", ADDER, str(store), str(c), str(go),
+                               str(r)], stderr=subprocess.PIPE, text=True)
+             for c, r in zip(calibs, ready)]
+    deadline = time.monotonic() + 120
+    while not all(r.exists() for r in ready):  # both past their imports: start together
+        assert time.monotonic() < deadline and all(p.poll() is None for p in procs)
+        time.sleep(0.01)
     go.touch()
     for p in procs:
         assert p.wait(timeout=120) == 0, p.stderr.read()
@@ -269,7 +277,7 @@ def test_two_processes_adding_at_once_lose_nothing(lab, tmp_path) -> None:
     assert index.equals(rebuild_index(store))
 
 
-# --- batch --store ------------------------------------------------------------------------------
+# --- batch --store, the fleet report, drift ------------------------------------------------------
 
 
 @pytest.fixture(scope="module")
@@ -309,6 +317,99 @@ def test_batch_adds_each_calibration_to_the_store(fleet_store) -> None:
     assert len(list(store.glob("*/*.calib.json"))) == 8 + 6
 
 
+def test_the_fleet_report_flags_the_unit_out_of_spec_and_only_it(lab, fleet_store, tmp_path,
+                                                                  capsys) -> None:
+    from viewer.readback import values
+
+    rrd = tmp_path / "fleet.rrd"
+    rc, out, err = _run(capsys, "fleet", "report", fleet_store["store"], "--rrd", rrd)
+    assert rc == 0, err
+    lines = out.splitlines()
+    assert lines[0].startswith("fleet: 8 devices, the newest calibration of each at or before")
+    i = lines.index("outliers: 1:")
+    assert lines[i + 1].startswith("  devX: accelerometer b_x = ")
+    assert float(lines[i + 1].split()[4]) == pytest.approx(0.12, abs=2e-3)
+    assert lines[i + 1].endswith("devX/2024-04-20T000000Z.calib.json")
+    flagged = [ln for ln in lines[2:i] if not ln.endswith(" -")]
+    assert len(lines[2:i]) == 21 and len(flagged) == 1
+    assert flagged[0].startswith("accelerometer b_x") and "devX (z = +" in flagged[0]
+
+    got = values(rrd, "fleet/outliers")
+    assert got["count"] == 1 and got["device"] == "devX"
+    assert got["parameter"] == "accelerometer b_x" and abs(got["value"] - 0.12) < 2e-3
+    assert got["z"] > 3.5
+    spread = values(rrd, "fleet/parameters/accelerometer/b_x")
+    assert spread["outliers"] == "devX" and spread["unit"] == "g"
+    assert sorted(spread["devices"]) == ["devA", "devB", *FLEET]
+    points = values(rrd, "fleet/z/points")
+    assert len(points["z"]) == 21 * 8
+    out_of_range = [(d, p) for d, p, z in zip(points["device"], points["parameter"], points["z"])
+                    if abs(z) > 3.5]
+    assert out_of_range == [("devX", "accelerometer b_x")]
+    # The newest of devA is its fourth (the fleet is judged on each unit's newest).
+    assert spread["values"][spread["devices"].index("devA")] == pytest.approx(
+        lab["truth"][("devA", 3)].b[0], abs=1.5e-3)
+
+
+def test_drift_of_two_devices_read_back_from_the_recording(lab, tmp_path, capsys) -> None:
+    from viewer.readback import scalars, values
+
+    store = tmp_path / "store"
+    for (device, k), calib in lab["calibs"].items():
+        _add(capsys, store, calib, device, DATES[k])
+    rrd = tmp_path / "drift.rrd"
+    rc, out, err = _run(capsys, "drift", "--device", "devA", "--device", "devB", "--store",
+                        store, "--rrd", rrd)
+    assert rc == 0, err
+    when = np.array([np.datetime64(d.replace(tzinfo=None), "ns") for d in DATES])
+    for device in DRIFT:
+        truth = [lab["truth"][(device, k)] for k in range(4)]
+        for group, names, true in (("bias", ("b_x", "b_y", "b_z"), [m.b for m in truth]),
+                                   ("scale", ("s_x", "s_y", "s_z"), [m.K for m in truth])):
+            for axis, name in enumerate(names):
+                t, v = scalars(rrd, f"drift/accelerometer/{group}/{device}/{name}",
+                               timeline="calibrated_at")
+                assert np.array_equal(t.astype("datetime64[ns]"), when), (device, name)
+                np.testing.assert_allclose(v, [x[axis] for x in true], atol=1.5e-3,
+                                           err_msg=f"{device} {name}")
+        stats = values(rrd, f"drift/stats/{device}")
+        by = dict(zip(stats["parameter"], zip(stats["change"], stats["change_sigma"],
+                                              stats["per_30d"])))
+        moving = {"devA": ("accelerometer b_x", 0.012), "devB": ("accelerometer b_z", -0.009)}
+        label, change = moving[device]
+        assert by[label][0] == pytest.approx(change, abs=1.5e-3)
+        assert by[label][2] == pytest.approx(change / 3, abs=6e-4)  # per 30 days
+        assert abs(by[label][1]) > 10  # far beyond the fits' errors
+        assert abs(by["accelerometer b_y"][1]) < 5  # still: within the errors
+    assert abs(values(rrd, "drift/stats/devA")["change"][5] - 0.006) < 1.5e-3  # s_z: +0.2 %x3
+
+    # The table: a row per parameter, a column per calibration.
+    block = out.split("\n\n")[0].splitlines()
+    assert block[0].startswith("devA: 4 calibrations from 2024-01-10 to 2024-04-09 (90 days)")
+    assert _cells(block[1]) == ["parameter", "unit", "2024-01-10", "2024-02-09", "2024-03-10",
+                                "2024-04-09", "change", "per", "30", "d", "change/σ"]
+    row = next(_cells(ln) for ln in block if ln.startswith("accelerometer b_x "))
+    truth = [lab["truth"][("devA", k)].b[0] for k in range(4)]
+    assert row[2] == "g" and np.allclose([float(x) for x in row[3:7]], truth, atol=1.5e-3)
+    assert float(row[7]) == pytest.approx(0.012, abs=1.5e-3)
+    assert out.split("\n\n")[1].startswith("devB: 4 calibrations")
+    assert out.rstrip().endswith(f"wrote {rrd}")
+
+
+def test_robust_z_by_hand() -> None:
+    from imucal.fleet.drift import robust_z
+
+    # median 3, |x - 3| = 2 1 0 1 97, MAD 1: z = 0.6745 (x - 3)
+    z, med, mad, how = robust_z(np.array([1.0, 2.0, 3.0, 4.0, 100.0]))
+    assert (med, mad, how) == (3.0, 1.0, "MAD")
+    np.testing.assert_allclose(z, 0.6745 * np.array([-2, -1, 0, 1, 97]))
+    # more than half equal: MAD 0, the mean absolute deviation (0.5) stands in
+    z, med, mad, how = robust_z(np.array([5.0, 5.0, 5.0, 5.0, 7.5]))
+    assert (med, mad) == (5.0, 0.0) and how.startswith("mean absolute deviation")
+    np.testing.assert_allclose(z, [0, 0, 0, 0, 2.5 / (1.253314 * 0.5)])
+    assert robust_z(np.array([2.0, 2.0, 2.0]))[3] == "all equal"
+
+
 # --- bad input -----------------------------------------------------------------------------------
 
 
@@ -321,6 +422,7 @@ def test_bad_input_is_one_line_and_exit_1(lab, tmp_path, capsys) -> None:
          f"{store}: --device: no calibrations of device 'devZ' in the store (it has 1 device: "
          "devA)"),
         (["store", "list", "--store", store, "--device", "devZ"], "devZ"),
+        (["drift", "--device", "devZ", "--store", store], "devZ"),
         (["store", "get", "--store", store, "--device", "devA", "--at", "last tuesday"],
          "--at: cannot read 'last tuesday' as a time (expected e.g. 2024-05-01 or "
          "2024-05-01T12:30:00Z)"),
@@ -336,6 +438,7 @@ def test_bad_input_is_one_line_and_exit_1(lab, tmp_path, capsys) -> None:
          "no device id in the file; give --device"),
         (["store", "list", "--store", tmp_path / "nowhere"],
          "no calibration store here (the folder does not exist)"),
+        (["fleet", "report", tmp_path / "nowhere"], "no calibration store here"),
     ]
     for args, message in cases:
         rc, out, err = _run(capsys, *args)

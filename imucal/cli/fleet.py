@@ -1,6 +1,7 @@
-"""The fleet's commands: ``batch`` (many recordings on a Dask cluster) and ``store add | list |
-get`` (a calibration store per device). Registered on the ``imucal`` app when imucal.cli
-loads.
+"""The fleet's commands: ``batch`` (many recordings on a Dask cluster), ``store add | list |
+get`` (a calibration store per device), ``drift`` (a device's parameters over time) and
+``fleet report`` (every parameter across the fleet, outliers flagged). Registered on the
+``imucal`` app when imucal.cli loads.
 
 Only the standard library and typer at module level (``imucal --help`` stays fast); dask,
 numpy and polars are imported inside the commands.
@@ -27,7 +28,7 @@ from imucal.cli.options import (
     shared_options,
     usage_error,
 )
-from imucal.cli.outputs import _isatty, check_outputs
+from imucal.cli.outputs import _isatty, check_outputs, viewer_available
 from imucal.errors import ImucalError
 
 EXIT_SESSIONS_FAILED = 1
@@ -175,7 +176,10 @@ store_app = typer.Typer(
     help="A calibration store per device: a folder of calib.json files (STORE/DEVICE/"
          "YYYY-MM-DDTHHMMSSZ.calib.json, the source of truth) and a Parquet index rebuilt "
          "from it.")
+fleet_app = typer.Typer(name="fleet", no_args_is_help=True, add_completion=False,
+                        rich_markup_mode=None, help="Reports across a fleet of devices.")
 app.add_typer(store_app, name="store")
+app.add_typer(fleet_app, name="fleet")
 
 StoreOpt = Annotated[Path, typer.Option(
     "--store", metavar="DIR", envvar="IMUCAL_STORE", show_default=False,
@@ -186,6 +190,8 @@ AtOpt = Annotated[str | None, typer.Option(
     "--at", metavar="TIME", show_default=False,
     help="The calibration in force at this time (2024-05-01, 2024-05-01T12:30:00Z; UTC "
          "unless it says) [default: now].")]
+RrdOpt = Annotated[Path | None, typer.Option(
+    "--rrd", metavar="FILE.rrd", show_default=False, help="Also write a Rerun recording.")]
 
 
 def _warn(message: str) -> None:
@@ -274,4 +280,60 @@ def store_get(
     print(f"wrote {out} (device {device}, calibrated_at "
           f"{st.iso(picked.row['calibrated_at'])}, {st.describe_age(picked.age)} before "
           f"{st.iso(picked.at)}; {picked.path})")
+    return 0
+
+
+# --- drift and the fleet report ------------------------------------------------------------------
+
+
+@app.command()
+def drift(
+    device: Annotated[list[str], typer.Option(
+        "--device", metavar="ID", show_default=False,
+        help="The device (repeat for several in one recording).")],
+    store: StoreOpt, rrd: RrdOpt = None,
+) -> int:
+    """How each parameter of a device moves over its calibrations: a table (and a recording
+    on a 'calibrated_at' timeline)."""
+    from imucal.fleet import store as st
+    from imucal.fleet.drift import device_drift, drift_lines
+
+    if rrd is not None:
+        check_outputs([rrd], [])
+    ids = [st.device_id(d) for d in device]
+    drifts = [device_drift(d, st.calibrations(_existing_store(store), d)) for d in ids]
+    print("\n\n".join("\n".join(drift_lines(d)) for d in drifts))
+    if rrd is not None:
+        with viewer_available():
+            from viewer.fleet import save_drift
+        save_drift(drifts, rrd)
+        print(f"wrote {rrd}")
+    return 0
+
+
+@fleet_app.command("report")
+def fleet_report(
+    store: Annotated[Path, typer.Argument(metavar="STORE", show_default=False,
+                                          help="The calibration store's folder.")],
+    rrd: RrdOpt = None, at: AtOpt = None,
+) -> int:
+    """Every parameter across the fleet (the newest calibration of each device), with the
+    units whose robust z-score exceeds 3.5 flagged."""
+    from imucal.fleet import store as st
+    from imucal.fleet.drift import fleet_lines
+    from imucal.fleet.drift import fleet_report as report_of
+
+    when = st.parse_when(at, "--at") if at is not None else None
+    if rrd is not None:
+        check_outputs([rrd], [])
+    rows = st.calibrations(_existing_store(store))
+    if not rows:
+        raise ImucalError("no calibrations stored", source=str(store))
+    rep = report_of(rows, when)
+    print("\n".join(fleet_lines(rep)))
+    if rrd is not None:
+        with viewer_available():
+            from viewer.fleet import save_fleet_report
+        save_fleet_report(rep, rrd)
+        print(f"wrote {rrd}")
     return 0
