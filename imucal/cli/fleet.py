@@ -183,7 +183,7 @@ app.add_typer(fleet_app, name="fleet")
 
 StoreOpt = Annotated[Path, typer.Option(
     "--store", metavar="DIR", envvar="IMUCAL_STORE", show_default=False,
-    help="The calibration store's folder [default: $IMUCAL_STORE].")]
+    help="The calibration store's folder (or $IMUCAL_STORE).")]
 DeviceOpt = Annotated[str, typer.Option("--device", metavar="ID", show_default=False,
                                         help="The device's id (its folder in the store).")]
 AtOpt = Annotated[str | None, typer.Option(
