@@ -96,6 +96,36 @@ class BatchReport:
     summary: Path
     workers: int
     cluster: str  # "LocalCluster of N workers on 127.0.0.1" or the scheduler's address
+    stored: StoreTally | None = None  # with --store: what went into the calibration store
+
+
+@dataclass
+class StoreTally:
+    """The batch's calibrations added to a store (:mod:`imucal.fleet.store`)."""
+
+    store: Path
+    added: int = 0
+    already: int = 0  # the same calibration was there (a rerun, a skipped session)
+    failed: list[str] = field(default_factory=list)
+
+    def add(self, row: dict[str, Any]) -> None:
+        """Store one calibrated session's calib.json under its device (the index is brought
+        up to date once, at the end); a failure is a warning on the row, not a lost batch."""
+        if row["status"] != "ok":
+            return
+        from imucal.fleet.store import add
+
+        try:
+            added = add(self.store, row["calib_path"], row["device"], update_index=False)
+        except (ImucalError, OSError) as e:
+            message = str(e) if isinstance(e, ImucalError) else f"{e.strerror or e}"
+            self.failed.append(f"{row['calib_path']}: {message}")
+            row["warnings"] = [*row["warnings"], f"not stored in {self.store}: {message}"]
+            return
+        if added.already:
+            self.already += 1
+        else:
+            self.added += 1
 
 
 # --- the worker's side ---------------------------------------------------------------------------
@@ -246,11 +276,13 @@ def cluster_client(scheduler: str | None, workers: int) -> Iterator[tuple[Any, s
 def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
               settings: dict[str, Any], scheduler: str | None = None, workers: int | None = None,
               device_from: str | None = None, spec: Spec | None = None, force: bool = False,
-              retries: int = 2, progress: Callable[[Counts], None] | None = None
-              ) -> BatchReport:
+              retries: int = 2, progress: Callable[[Counts], None] | None = None,
+              store: Path | None = None) -> BatchReport:
     """Calibrate ``files`` on a cluster; write ``out_dir/summary.parquet``; return the rows.
 
-    ``workers`` (a LocalCluster's size) defaults to one per core, at most one per session."""
+    ``workers`` (a LocalCluster's size) defaults to one per core, at most one per session.
+    ``store``: add every calibrated session to that calibration store, as its result comes in
+    (the sessions a rerun skips too: the store keeps one copy of each)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs, rows = plan(files, out_dir, device_from=device_from, load_kw=load_kw,
                       settings=settings, spec=spec)
@@ -271,6 +303,9 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
         else:
             todo.append(job)
     by_sha: dict[str, dict[str, Any]] = {r["sha256"]: r for r in rows if r.get("sha256")}
+    tally = None if store is None else StoreTally(store)
+    for row in rows if tally is not None else ():
+        tally.add(row)
     where = "nothing to do"
     workers = workers or max(1, min(os.cpu_count() or 1, len(todo)))
     if todo:
@@ -279,6 +314,8 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
             for row in _gather(client, todo, retries, counts, progress):
                 rows.append(row)
                 by_sha[row["sha256"]] = row
+                if tally is not None:
+                    tally.add(row)
     for job in dupes:
         rows.append(_duplicate_row(job, by_sha[job.sha256], originals[job.sha256]))
     rows.sort(key=lambda r: (r["device"] or "", r["session"] or "", r["path"]))
@@ -287,9 +324,14 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
     summary = out_dir / SUMMARY
     frame = to_frame(rows)
     write_atomic(summary, frame.write_parquet)
+    if tally is not None and store.is_dir():
+        from imucal.fleet.index import refresh_index
+
+        refresh_index(store)
     if progress is not None:
         progress(counts)
-    return BatchReport(rows=rows, counts=counts, summary=summary, workers=workers, cluster=where)
+    return BatchReport(rows=rows, counts=counts, summary=summary, workers=workers, cluster=where,
+                       stored=tally)
 
 
 def _gather(client, todo: list[Job], retries: int, counts: Counts,
@@ -326,5 +368,5 @@ def _duplicate_row(job: Job, original_row: dict[str, Any], original: Job) -> dic
                            "calib_path": original_row.get("calib_path")}
 
 
-__all__ = ["BatchReport", "Counts", "Job", "SUMMARY", "plan", "run_batch", "run_job",
-           "settings_hash"]
+__all__ = ["BatchReport", "Counts", "Job", "SUMMARY", "StoreTally", "plan", "run_batch",
+           "run_job", "settings_hash"]
