@@ -1,8 +1,9 @@
 """The recording as a person sees it: the native viewer (headless, software Vulkan) and the web
 viewer served on 127.0.0.1 and rendered by headless Chromium.
 
-Needs ``mesa-vulkan-drivers`` and ``chromium`` (Debian packages, installed by .ci/run). A test
-is skipped only when its program is absent. Every process started here gets its own process
+Needs ``mesa-vulkan-drivers`` and ``chromium`` (Debian packages, installed by .ci/run): where
+one is missing the test is skipped with a reason naming the package, except in CI, where it
+fails (``tests/viewer_env.py``). Every process started here gets its own process
 group and a private ``XDG_DATA_HOME`` (the viewer persists layouts there), and is ended by its
 group id.
 """
@@ -16,7 +17,6 @@ import json
 import os
 import re
 import select
-import shutil
 import signal
 import subprocess
 import sys
@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from viewer_env import RERUN
 
 import imucal
 from viewer.app import free_port
@@ -33,8 +34,6 @@ from viewer.recording import save_recording
 
 pytestmark = pytest.mark.viewer
 
-RERUN = Path(sys.executable).parent / "rerun"
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 WIDTH, HEIGHT = 1600, 1000
 SHOTS = os.environ.get("IMUCAL_SCREENSHOT_DIR")  # keep the screenshots there, if set
 
@@ -102,8 +101,7 @@ def _private_env(tmp_path: Path) -> dict:
 # --- native viewer -------------------------------------------------------------------------------
 
 
-@pytest.mark.skipif(not RERUN.exists(), reason="the rerun executable is not in the venv")
-def test_native_viewer_shows_every_tab_without_errors(sample_rrd, tmp_path):
+def test_native_viewer_shows_every_tab_without_errors(native_viewer, sample_rrd, tmp_path):
     from rerun.experimental import ViewerClient
 
     port = free_port()
@@ -248,9 +246,7 @@ class DevTools:
         _stop(self.proc)
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed")
-@pytest.mark.skipif(not RERUN.exists(), reason="the rerun executable is not in the venv")
-def test_web_viewer_renders_the_recording_in_chromium(sample_rrd, tmp_path):
+def test_web_viewer_renders_the_recording_in_chromium(chromium_path, sample_rrd, tmp_path):
     web_port = free_port()
     server = _start([sys.executable, "-c", "from imucal.cli import view_main; view_main()",
                      str(sample_rrd), "--web", "--port", str(web_port)],
@@ -264,7 +260,7 @@ def test_web_viewer_renders_the_recording_in_chromium(sample_rrd, tmp_path):
         url = match.group(0)
         _wait(lambda: _http_ok(f"http://127.0.0.1:{web_port}/"), 30, "the web viewer's server")
 
-        chrome = DevTools(CHROMIUM, tmp_path / "profile", tmp_path / "chromium.log")
+        chrome = DevTools(chromium_path, tmp_path / "profile", tmp_path / "chromium.log")
         target = chrome.call("Target.createTarget", {"url": url})["targetId"]
         session = chrome.call("Target.attachToTarget",
                               {"targetId": target, "flatten": True})["sessionId"]
