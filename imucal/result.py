@@ -4,6 +4,7 @@ the run (the CLI's summary, the viewer, the calibration file) needs."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from imucal.stages.apply import CalibratedSignals, Calibration
 from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
 from imucal.stages.gyro import GyroFit
+from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
 from imucal.warning import RunWarning
 
@@ -88,6 +90,14 @@ class Result:
         """(M,) True on the gyroscope samples inside a still block (None without a gyroscope)."""
         blocks = self.gyro_blocks
         return None if blocks is None else mask_of_runs(blocks, len(self.session.t_gyro))
+
+    @cached_property
+    def noise(self) -> NoiseReport | None:
+        """The sensor's noise measured on the calibrated still blocks (white noise density and
+        bias instability per axis, method of :mod:`imucal.stages.noise`); None when the blocks
+        are too short. Computed once, on request: the calibration file and the viewer read it,
+        a script that only wants the parameters never pays for it."""
+        return still_noise(self.calibrated, self.block_times)
 
     @property
     def raw_acc_norm(self) -> np.ndarray:

@@ -20,7 +20,6 @@ from imucal.io.atomic import write_text_atomic
 from imucal.io.noise_json import noise_to_dict
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
 from imucal.stages.apply import Calibration
-from imucal.stages.noise import still_noise
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -138,7 +137,7 @@ def result_to_dict(result: Result) -> dict:
         },
         # The sensor's noise from the still blocks (white noise density per axis; bias
         # instability and random walk only where the blocks are long enough to show them).
-        "noise": noise_to_dict(still_noise(result.calibrated, result.block_times)),
+        "noise": noise_to_dict(result.noise),
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
     }
 
