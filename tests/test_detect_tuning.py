@@ -214,3 +214,21 @@ def test_mikoff_out_of_the_box(shared_data, unit, mg, cv_mg, deg):
     assert _after(r.quality.static_norm_rms_mg) <= mg * 1.05
     assert r.quality.static_norm_cv_mg <= cv_mg * 1.02
     assert _after(r.quality.gravity_angle_rms_deg) <= deg
+
+
+def test_a_knock_during_a_turn_is_smoothed_over_but_not_called_a_glitch():
+    """A plausible single-sample spike in motion (the Xsens recording has three) is left out
+    of the statistic without a warning; an absurd value in the same place is named."""
+    session, _ = make_session(poses=20, seed=5)
+    clean = imucal.calibrate(session)
+    det = clean.detection
+    moving = np.flatnonzero((det.statistic > 10 * det.threshold) & ~clean.acc_still)
+    i = int(moving[len(moving) // 2])
+    for value, warned in ((0.4, False), (1e9, True)):
+        acc = session.acc.copy()
+        acc[i, 0] += value
+        r = imucal.calibrate(dataclasses.replace(session, acc=acc))
+        assert i in r.detection.outliers.tolist()
+        named = [w for w in _texts(r.warnings) if f"sample {i} " in w]
+        assert bool(named) == warned, (value, named)
+        assert len(r.detection.blocks) == len(det.blocks)

@@ -69,7 +69,7 @@ class Detection:
     k: float = THESIS_K
     note: str | None = None  # the initial interval was not still: what was done instead
     outliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # sample indices
-    outlier_note: str | None = None  # the outliers named for the user
+    outlier_note: str | None = None  # the glitches among them named for the user (glitches())
     tuning: Tuning | None = None  # how the values were chosen (None: all given)
     orientations: int | None = None  # distinct still directions of the blocks
 
@@ -235,7 +235,24 @@ def without_outliers(x: np.ndarray, outliers: np.ndarray) -> np.ndarray:
     return out
 
 
+def glitches(outliers: np.ndarray, acc: np.ndarray, clean: np.ndarray, stat: np.ndarray,
+             threshold: float) -> np.ndarray:
+    """The outliers that cannot be the motion itself: those in still surroundings (the
+    statistic, computed without them, is below the threshold there) and those outside the range
+    the rest of the signal spans, widened by that span (1e12 in a 2 g signal). A single-sample
+    spike during a turn is as often a knock as a glitch (the Xsens reference recording has
+    three); it is still left out of the statistic, but not reported as a fault."""
+    if len(outliers) == 0:
+        return outliers
+    lo, hi = clean.min(axis=0), clean.max(axis=0)
+    span = hi - lo
+    v = acc[outliers]
+    absurd = np.any((v < lo - span) | (v > hi + span) | ~np.isfinite(v), axis=1)
+    return outliers[(stat[outliers] < threshold) | absurd]
+
+
 def outlier_note(outliers: np.ndarray, t: np.ndarray, acc: np.ndarray) -> str | None:
+    """The outliers named for the user (sample, time, value), or None when there are none."""
     if len(outliers) == 0:
         return None
     shown = ", ".join(f"sample {i} (t = {t[i]:.3f} s, {np.array2string(acc[i], precision=4)})"
@@ -325,7 +342,8 @@ def detect_static(acc: np.ndarray, t: np.ndarray, settings: DetectSettings = Set
     return Detection(statistic=stat, threshold=threshold, s2_init=s2_init, blocks=blocks,
                      means=block_means(acc, blocks), window=window, min_len=min_len, init=init,
                      k=k, note=note, outliers=outliers,
-                     outlier_note=outlier_note(outliers, t, acc))
+                     outlier_note=outlier_note(glitches(outliers, acc, clean, stat, threshold),
+                                               t, acc))
 
 
 def check_window(window: int, n: int, source: str) -> None:

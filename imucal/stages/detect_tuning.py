@@ -48,6 +48,7 @@ from imucal.stages.detect import (
     Detection,
     Tuning,
     check_window,
+    glitches,
     initial_level,
     isolated_outliers,
     outlier_note,
@@ -133,7 +134,9 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     return Detection(statistic=stat, threshold=best.k * ref, s2_init=ref, blocks=blocks,
                      means=exact.means, window=best.window, min_len=best.min_len, init=init,
                      k=best.k, note=note, outliers=outliers,
-                     outlier_note=outlier_note(outliers, t, acc), tuning=tuning,
+                     outlier_note=outlier_note(glitches(outliers, acc, clean, stat,
+                                                        best.k * ref), t, acc),
+                     tuning=tuning,
                      orientations=cands[chosen].orientations)
 
 
