@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -42,6 +43,30 @@ def resolve_g(session: Session, g: float | None) -> tuple[float, float, str]:
     return g_in, g_out, "g" if g_out == 1.0 else "m/s^2"
 
 
+def _detect(session: Session, settings: Settings, g_in: float) -> tuple[Detection, str | None]:
+    """The still blocks (§1), and what became of the initial still period the file states.
+
+    A logger's preamble may say how long the sensor lay still at the start: unless the user set
+    the interval, the reference level of M1 is learned over it. A stated period that is not
+    still (a wrong header) is said, and the detector chooses as if nothing were stated.
+    """
+    run = functools.partial(tune_detector, session.acc, session.t_acc, acc_unit=session.acc_unit,
+                            g_in=g_in, source=session.source)
+    stated = session.init_still_s
+    if stated is None or settings.detect.init is not None:
+        return run(settings.detect), None
+    said = f"the file states an initial still period of {stated:g} s"
+    try:
+        det = run(dataclasses.replace(settings.detect, init=(0.0, float(stated))))
+    except ImucalError as e:
+        if e.field != "initial still period":
+            raise
+        det = run(settings.detect)
+        return det, (f"{said}, but the sensor is not still for that long at the start; the "
+                     f"noise level was learned from {det.tuning.reference} instead")
+    return det, f"{said}: the noise level was learned from {det.tuning.reference}"
+
+
 def calibrate(session: Session, settings: Settings | None = None, **overrides) -> Result:
     """Calibrate a session: the whole method of method.md, one stage after the other."""
     try:
@@ -53,8 +78,7 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     warnings = [RunWarning("input", note) for note in session.notes]
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 
-    det = tune_detector(session.acc, session.t_acc, settings.detect, acc_unit=session.acc_unit,
-                        g_in=g_in, source=session.source)
+    det, stated = _detect(session, settings, g_in)
     if det.note:  # the initial still interval was moved, or the reference level found (§1)
         warnings.append(RunWarning("detector_reference", det.note))
     if det.outlier_note:  # isolated absurd samples, left out of every still block (§1)
@@ -76,12 +100,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                        "under-measured; turn more slowly"))
     block_times = np.column_stack([session.t_acc[det.blocks[:, 0]],
                                    session.t_acc[det.blocks[:, 1] - 1]])
-    if session.init_still_s is not None:  # a hint the file gave; only reported for now (§1)
-        t0, t1 = block_times[0] - session.t_acc[0]
-        warnings.append(RunWarning(
-            "init_still_stated", f"the file states an initial still period of "
-            f"{session.init_still_s:g} s; the first still block found spans {t0:.1f}-{t1:.1f} s"
-            " (the stated length is not used by the detector)"))
+    if stated:
+        warnings.append(RunWarning("init_still_stated", stated))
 
     # A first whole-session fit: it gives the grouping calibrated magnitudes (method.md §2).
     whole = calibrate_accelerometer(session.acc, det.blocks, acc_unit=session.acc_unit,

@@ -232,3 +232,23 @@ def test_a_knock_during_a_turn_is_smoothed_over_but_not_called_a_glitch():
         named = [w for w in _texts(r.warnings) if f"sample {i} " in w]
         assert bool(named) == warned, (value, named)
         assert len(r.detection.blocks) == len(det.blocks)
+
+
+@pytest.mark.parametrize("stated", [30.0, 60.0])
+def test_the_files_stated_initial_still_period_is_where_the_level_is_learned(stated):
+    """A logger's preamble says how long the sensor lay still first: the reference level comes
+    from that interval (30 s, the truth); a stated period longer than the real rest (60 s)
+    is caught moving and the first still stretch as long takes its place."""
+    session, truth = make_session(poses=30, seed=5, init_still=30.0)
+    session = dataclasses.replace(_noisier_after(session, 30.0, 0.0045), init_still_s=stated)
+    r = imucal.calibrate(session)
+    det = r.detection
+    said = [w.message for w in r.warnings if w.code == "init_still_stated"]
+    assert len(said) == 1 and f"initial still period of {stated:g} s" in said[0]
+    if stated == 30.0:
+        assert det.init == (0.0, 30.0)
+        assert "initial still interval 0-30 s" in det.tuning.reference
+    else:
+        assert det.init != (0.0, 60.0) and "not still for that long" in said[0]
+    assert len(det.blocks) == 30
+    np.testing.assert_allclose(r.segments[0].acc.model.K, truth.acc.K, rtol=3e-3)

@@ -118,7 +118,9 @@ def test_the_stated_initial_still_period_reaches_the_result_as_a_note(synthetic)
     s = imucal.calibrate(imucal.Session(**{**session.__dict__, "init_still_s": 30.0}))
     note = [w.message for w in s.warnings if "initial still period" in w.message]
     assert len(note) == 1 and note[0].startswith("the file states an initial still period of "
-                                                 "30 s; the first still block found spans 0.0-")
+                                                 "30 s")
+    # the detector used it (tests/test_detect_tuning.py checks the interval it learned from)
+    assert s.detection.init is not None and s.detection.init[0] >= 0.0
 
 
 # --- 2. a last line cut by a logger killed mid-write ------------------------------------------
