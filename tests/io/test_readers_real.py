@@ -119,7 +119,7 @@ def test_the_stated_initial_still_period_reaches_the_result_as_a_note(synthetic)
     note = [w.message for w in s.warnings if "initial still period" in w.message]
     assert len(note) == 1 and note[0].startswith("the file states an initial still period of "
                                                  "30 s")
-    # the detector used it (tests/test_detect_tuning.py checks the interval it learned from)
+    # the detector used it (tests/stages/test_detect_tuning.py checks the interval it learned from)
     assert s.detection.init is not None and s.detection.init[0] >= 0.0
 
 
@@ -384,7 +384,7 @@ def test_two_equally_good_columns_name_the_option(tmp_path):
 
 
 def test_no_io_module_outgrows_one_idea():
-    io_dir = Path(__file__).resolve().parents[1] / "imucal" / "io"
+    io_dir = Path(__file__).resolve().parents[2] / "imucal" / "io"
     sizes = {p.name: len(p.read_text().splitlines()) for p in io_dir.glob("*.py")}
     assert "load.py" in sizes and "column_names.py" in sizes and "time_base.py" in sizes
     assert {name: n for name, n in sizes.items() if n > 400} == {}

@@ -38,7 +38,7 @@ SHORT = {"poses": 12, "still": 2.5, "move": 1.0, "init_still": 4.0}
 
 
 def _models(seed: int) -> tuple[SensorModel, SensorModel]:
-    """A unit well inside the spec of tests/test_fleet.py (bias ~10 mg, scale ~0.5 %)."""
+    """A unit well inside the spec of tests/fleet/test_fleet.py (bias ~10 mg, scale ~0.5 %)."""
     rng = np.random.default_rng(seed)
     return random_acc_model(rng, mis=0.002, scale=0.005, bias=0.01), random_gyro_model(rng)
 

@@ -31,7 +31,7 @@ from imucal.io.exports import export
 from imucal.synth import make_session
 
 G_N = 9.80665
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 IMUCAL = shutil.which("imucal", path=str(BIN)) or str(BIN / "imucal")
 GCC = shutil.which("gcc") or shutil.which("cc")

@@ -17,7 +17,7 @@ import polars as pl
 import pytest
 from scipy.io import loadmat
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "sample_data" / "session.mat"
 XSENS = ROOT.parent / "shared" / "data" / "imu_tk_xsens"
 BIN = Path(sys.executable).parent

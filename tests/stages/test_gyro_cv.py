@@ -16,7 +16,7 @@ from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.gyro_transitions import Transitions, angle_between, gyro_model_of
 from imucal.synth import make_session
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _shared_data() -> Path:

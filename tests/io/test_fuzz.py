@@ -68,7 +68,7 @@ def _mutate(data: bytes, rng: np.random.Generator) -> bytes:
 
 
 def test_mutated_files_raise_only_imucal_errors(tmp_path):
-    shared = Path(__file__).resolve().parents[2] / "shared" / "data"
+    shared = Path(__file__).resolve().parents[3] / "shared" / "data"
     files = _corpus(shared if shared.is_dir() else None, tmp_path)
     rng = np.random.default_rng(12345)
     n_ok = n_err = 0
