@@ -8,7 +8,8 @@ The core is pure computation (it never imports rerun). Public API::
     calibrated = imucal.load_calibration("calib.json").apply(session)
 
 Names are imported on first use (PEP 562), so ``import imucal`` costs nothing until then and
-``imucal --help`` stays fast.
+``imucal --help`` stays fast. ``imucal.__version__`` is the installed package's version, read
+from its metadata (whose one source is ``pyproject.toml``), so it cannot drift from it.
 """
 
 from __future__ import annotations
@@ -29,8 +30,11 @@ _WHERE = {
     "load_session": "io.load",
 }
 
+DISTRIBUTION = "imucal-rerun"  # the name pyproject.toml installs imucal under
+__version__: str  # read on first use (__getattr__ below): the installed metadata's
+
 __all__ = ["CalibratedSignals", "Calibration", "ImucalError", "Result", "Session", "Settings",
-           "calibrate", "load_calibration", "load_session", "save_calibration"]
+           "__version__", "calibrate", "load_calibration", "load_session", "save_calibration"]
 
 if TYPE_CHECKING:
     from imucal.errors import ImucalError
@@ -43,7 +47,19 @@ if TYPE_CHECKING:
     from imucal.stages.apply import CalibratedSignals, Calibration
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(DISTRIBUTION)
+    except PackageNotFoundError:  # imported from a source tree that was never installed
+        return "0+unknown"
+
+
 def __getattr__(name: str) -> Any:
+    if name == "__version__":
+        globals()[name] = value = _version()
+        return value
     if name in _WHERE:
         value = getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
         globals()[name] = value

@@ -20,6 +20,7 @@ from imucal.cli.options import (
     build_settings,
     choice,
     fraction,
+    ip_address,
     load_kwargs,
     non_negative,
     pick,
@@ -46,7 +47,7 @@ app = typer.Typer(
     name="imucal",
     help="Calibrate an IMU's accelerometer and gyroscope from an ordinary recording "
          "(still poses with turns between them).",
-    add_completion=False,
+    add_completion=True,  # --install-completion, --show-completion (typer's)
     no_args_is_help=True,
     rich_markup_mode=None,
     pretty_exceptions_enable=False,
@@ -293,15 +294,30 @@ def view(
         "--save", metavar="FILE.rrd", help="Save the recording instead of opening a viewer.")
     ] = None,
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer.")] = False,
-    port: Annotated[int, typer.Option("--port", metavar="N", min=1, max=65535,
-                                      help="Port of the web viewer.")] = 9090,
+    port: Annotated[int | None, typer.Option(
+        "--port", metavar="N", min=1, max=65535, show_default=False,
+        help="Port of the web viewer [default: 9090, or a free one when 9090 is taken]; a "
+             "port given must be free.")] = None,
+    grpc_port: Annotated[int | None, typer.Option(
+        "--grpc-port", metavar="N", min=1, max=65535, show_default=False,
+        help="Port of the viewer's gRPC server [default: a free one]; a port given must be "
+             "free.")] = None,
+    bind: Annotated[str, typer.Option(
+        "--bind", metavar="ADDR", callback=ip_address,
+        help="Address the viewer's servers listen on (0.0.0.0: every interface, to be "
+             "reached from other machines).")] = "127.0.0.1",
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
+    verbose: Annotated[bool, typer.Option(
+        "--verbose", "-v", help="Show the viewer's own log on the terminal.")] = False,
 ) -> int:
     """Calibrate a recording and show every step in Rerun (or open a saved .rrd).
 
     Without a display (and without --web) the recording is written to SESSION-STEM.rrd in the
     current directory instead (SESSION-STEM-1.rrd, -2, ... if that name is taken: a file
-    imucal named itself never replaces another).
+    imucal named itself never replaces another). The viewer's servers listen on 127.0.0.1
+    unless --bind says otherwise; its own log is shown only with -v (a failure is one line).
+    The native viewer needs a GPU or a software Vulkan renderer (Debian/Ubuntu:
+    mesa-vulkan-drivers); the web viewer a browser.
     """
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
@@ -317,26 +333,23 @@ def view(
         check_outputs([save], [target, gyro])
     with viewer_available():
         from viewer.app import show
-    rc = show(str(target), save=save, web=web, port=port,
-                 load_options=load_options or None, **overrides)
+    rc = show(str(target), save=save, web=web, port=port, grpc_port=grpc_port, bind=bind,
+              verbose=verbose, load_options=load_options or None, **overrides)
     return int(rc or 0)
 
 
-def _version(value: bool) -> None:
-    if value:
-        from importlib.metadata import PackageNotFoundError, version
+def print_version(ctx: typer.Context, value: bool) -> None:
+    """``--version``: the program's name and :data:`imucal.__version__` (the package's)."""
+    if value and not ctx.resilient_parsing:
+        import imucal
 
-        try:
-            v = version("imucal-rerun")
-        except PackageNotFoundError:
-            v = "unknown"
-        print(f"imucal {v}")
+        print(f"{ctx.find_root().info_name or 'imucal'} {imucal.__version__}")
         raise typer.Exit()
 
 
 @app.callback()
 def _root(
-    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+    version: Annotated[bool, typer.Option("--version", callback=print_version, is_eager=True,
                                           help="Show the version and exit.")] = False,
 ) -> None:
     """Calibrate an IMU's accelerometer and gyroscope from an ordinary recording.

@@ -101,7 +101,7 @@ def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
     try:
         cli = typer.main.get_command(app)
         if command is not None:
-            cli = cli.commands[command]
+            cli = _as_program(cli, command)
         rv = cli.main(args, prog_name=prog, standalone_mode=False)
         if rv == EXIT_INTERRUPTED:
             err("interrupted")
@@ -122,6 +122,10 @@ def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
     except KeyboardInterrupt:
         err("interrupted")
         return EXIT_INTERRUPTED
+    except SystemExit as e:  # typer's --show-completion, --install-completion, completion
+        if isinstance(e.code, str):
+            err(e.code)
+        return e.code if isinstance(e.code, int) else EXIT_OK if e.code is None else EXIT_ERROR
     except BrokenPipeError:
         # The reader of stdout went away (e.g. `imucal ... | head`): stop quietly.
         with contextlib.suppress(OSError):
@@ -143,6 +147,21 @@ def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
         err(f"internal error: {e.__class__.__name__}: {e} (a bug in imucal; run with "
              "IMUCAL_DEBUG=1 for the traceback)")
         return EXIT_INTERNAL
+
+
+def _as_program(group: typer.core.TyperGroup, command: str) -> typer.core.TyperCommand:
+    """One subcommand as a program of its own (``imucal-view`` is ``imucal view``), with the
+    root's ``--version`` and typer's ``--install-completion``/``--show-completion`` (which a
+    subcommand does not get): built afresh on each run, so ``imucal view`` keeps its own."""
+    import copy
+
+    cli = group.commands[command]
+    for param in group.params:
+        if param.name in ("version", "install_completion", "show_completion"):
+            param = copy.copy(param)
+            param.expose_value = False  # handled by its callback, never passed to the command
+            cli.params.append(param)
+    return cli
 
 
 def view_main(argv: list[str] | None = None) -> None:

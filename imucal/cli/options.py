@@ -74,6 +74,17 @@ def positive(value: float | None) -> float | None:
     return value
 
 
+def ip_address(value: str) -> str:
+    """An IPv4 or IPv6 address (what the viewer's ``--bind`` takes)."""
+    import ipaddress
+
+    try:
+        return str(ipaddress.ip_address(value))
+    except ValueError:
+        raise typer.BadParameter(f"must be an IP address such as 127.0.0.1 or 0.0.0.0, got "
+                                 f"{value!r}") from None
+
+
 def non_negative(value: float | None) -> float | None:
     if value is not None and not (math.isfinite(value) and value >= 0):
         raise typer.BadParameter(f"must be a number >= 0, got {value:g}")
