@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import glob
 import os
 import re
 import select
@@ -29,11 +28,12 @@ from importlib.metadata import version
 from pathlib import Path
 
 import pytest
+from viewer_env import need, vulkan_missing
 
 import imucal
 from viewer.app import DEFAULT_WEB_PORT, free_port, native_command, port_taken, show
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RERUN = Path(sys.executable).parent / "rerun"
 VIEW = [sys.executable, "-c", "from imucal.cli import view_main; view_main()"]
 IMUCAL = [sys.executable, "-c", "import sys; from imucal.cli import main; sys.exit(main())"]
@@ -238,15 +238,8 @@ def _display_wrapper() -> list[str]:
         return ["xvfb-run", "-a", "-s", "-screen 0 1280x800x24"]
     if os.environ.get("DISPLAY"):
         return []
-    pytest.skip("needs a display or Xvfb: install the Debian package xvfb")
-
-
-def _need_vulkan() -> None:
-    if not glob.glob("/usr/share/vulkan/icd.d/*.json"):
-        why = "no Vulkan renderer: install the Debian package mesa-vulkan-drivers"
-        if os.environ.get("CI"):
-            pytest.fail(why)
-        pytest.skip(why)
+    need("needs a display or Xvfb: install the Debian package xvfb")
+    return []
 
 
 @pytest.mark.viewer
@@ -254,7 +247,7 @@ def _need_vulkan() -> None:
 @pytest.mark.parametrize("verbose", [False, True])
 def test_native_viewer_is_quiet_and_listens_on_loopback(rrd, tmp_path, verbose):
     wrapper = _display_wrapper()
-    _need_vulkan()
+    need(vulkan_missing())
     env = _env(tmp_path)
     port = free_port()
     out, err = tmp_path / "out", tmp_path / "err"
