@@ -26,7 +26,7 @@ def test_imports_only_run_downward() -> None:
 def test_stage_folders_hold_the_method() -> None:
     stages = {p.stem for p in (ROOT / "imucal" / "stages").glob("*.py")} - {"__init__"}
     assert {"detect", "group", "accel", "gyro", "apply", "quality"} <= stages
-    numerics = (ROOT / "imucal" / "numerics").glob("*.py")
+    numerics = (ROOT / "imucal" / "numerics").rglob("*.py")
     for path in numerics:  # numerics know nothing of IMUs
         text = path.read_text().lower()
         for word in ("accelerometer", "gyroscope", "imu"):

@@ -24,7 +24,12 @@ def lcurve_corner(lambdas: np.ndarray, rho: np.ndarray, eta: np.ndarray) -> tupl
     speed2 = dx * dx + dy * dy
     with np.errstate(divide="ignore", invalid="ignore"):
         curv = (dx * ddy - ddx * dy) / speed2**1.5
-    moving = speed2 > (1e-6 * np.max(speed2)) if np.max(speed2) > 0 else np.zeros_like(x, bool)
+    # A curve flat to rounding still moves by about eps |x| / h per unit of log lambda (the
+    # grid is uniform only to rounding, so np.gradient of a constant is not exactly 0): below
+    # a few hundred times that nothing moved, whatever the largest speed.
+    h = np.max(np.abs(np.diff(t)))
+    flat = (256 * np.finfo(float).eps * max(np.max(np.abs(x)), np.max(np.abs(y)), 1.0) / h) ** 2
+    moving = speed2 > max(1e-6 * np.max(speed2), flat)
     curv = np.where(moving & np.isfinite(curv), curv, np.nan)
     curv[[0, -1]] = np.nan  # one-sided differences at the ends are not trusted
     if np.all(np.isnan(curv)) or np.nanmax(curv) <= 0:

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 
 # scipy's forward-difference step, sqrt(machine epsilon) relative (its "2-point" rule)
 _FD_STEP = float(np.sqrt(np.finfo(float).eps))
@@ -75,50 +75,70 @@ def fit_tikhonov(
     Raises ``FloatingPointError`` when the residuals at ``start`` are not finite.
     """
     start = np.array(start, dtype=float)
-    sq = np.sqrt(lam)
-    p = len(theta0)
-    eye = sq * np.eye(p)
-    trace_t: list[np.ndarray] = []
-    trace_c: list[float] = []
-    last: list[tuple[np.ndarray, np.ndarray]] = []  # the latest (theta, r_data) evaluated
+    problem = _StackedProblem(residuals, jacobian, theta0, lam)
+    res = least_squares(problem.fun, start, jac=problem.jac, method="lm", x_scale="jac",
+                        max_nfev=max_nfev)
+    return _account(res, problem, start, start_name, lam)
 
-    def fun(theta: np.ndarray) -> np.ndarray:
-        r_data = np.asarray(residuals(theta), dtype=float)
-        r = np.concatenate([r_data, sq * (theta - theta0)])
+
+class _StackedProblem:
+    """The stacked residuals ``(r_data(theta), sqrt(lam) (theta - theta0))`` and their Jacobian
+    as scipy asks for them, recording on the way the accepted steps (the fit's trace) and the
+    latest data residuals (reused by the forward differences)."""
+
+    def __init__(self, residuals: Callable[[np.ndarray], np.ndarray],
+                 jacobian: Callable[[np.ndarray], np.ndarray] | None,
+                 theta0: np.ndarray, lam: float):
+        self.residuals, self.jacobian, self.theta0 = residuals, jacobian, theta0
+        self.sq = np.sqrt(lam)
+        self.p = len(theta0)
+        self.eye = self.sq * np.eye(self.p)
+        self.trace_t: list[np.ndarray] = []
+        self.trace_c: list[float] = []
+        self.last: list[tuple[np.ndarray, np.ndarray]] = []  # the latest (theta, r_data)
+
+    def fun(self, theta: np.ndarray) -> np.ndarray:
+        r_data = np.asarray(self.residuals(theta), dtype=float)
+        r = np.concatenate([r_data, self.sq * (theta - self.theta0)])
         c = float(r @ r)
-        if not trace_c:  # scipy evaluates the start first
+        if not self.trace_c:  # scipy evaluates the start first
             if not np.isfinite(c):
                 raise FloatingPointError("non-finite residual at the start point")
-            trace_t.append(theta.copy())
-            trace_c.append(c)
-        elif c < trace_c[-1]:
+            self.trace_t.append(theta.copy())
+            self.trace_c.append(c)
+        elif c < self.trace_c[-1]:
             # LM only moves to a trial point that lowers the cost: the running minimum of the
             # evaluations is the sequence of accepted steps.
-            trace_t.append(theta.copy())
-            trace_c.append(c)
-        last[:] = [(theta.copy(), r_data)]
+            self.trace_t.append(theta.copy())
+            self.trace_c.append(c)
+        self.last[:] = [(theta.copy(), r_data)]
         return r
 
-    def data_jac(theta: np.ndarray) -> np.ndarray:
-        if jacobian is not None:
-            return np.asarray(jacobian(theta), dtype=float)
-        return _forward_difference(residuals, theta, last)
+    def jac(self, theta: np.ndarray) -> np.ndarray:
+        if self.jacobian is not None:
+            data = np.asarray(self.jacobian(theta), dtype=float)
+        else:
+            data = _forward_difference(self.residuals, theta, self.last)
+        return np.vstack([data, self.eye])
 
-    def jac(theta: np.ndarray) -> np.ndarray:
-        return np.vstack([data_jac(theta), eye])
 
-    res = least_squares(fun, start, jac=jac, method="lm", x_scale="jac", max_nfev=max_nfev)
+def _account(res: OptimizeResult, problem: _StackedProblem, start: np.ndarray, start_name: str,
+             lam: float) -> FitReport:
+    """The :class:`FitReport` of scipy's result ``res`` on ``problem``: the data residuals and
+    Jacobian are the stacked ones' first ``n`` rows, as LM evaluated them at the solution."""
+    p = problem.p
     n = len(res.fun) - p
-    r_data = res.fun[:n]  # the residuals at theta, as LM evaluated them there
+    r_data = res.fun[:n]
     data_cost = float(r_data @ r_data)
-    J = np.array(res.jac[:n])  # the data Jacobian at theta (least_squares evaluates it there)
+    J = np.array(res.jac[:n])
     cov, cond = sandwich_cov(J, lam, data_cost / max(n - p, 1))
     return FitReport(
         theta=res.x, start=start, start_name=start_name, lam=float(lam),
-        cost_start=trace_c[0], cost=float(res.fun @ res.fun), data_cost=data_cost,
+        cost_start=problem.trace_c[0], cost=float(res.fun @ res.fun), data_cost=data_cost,
         nfev=int(res.nfev), njev=int(res.njev or 0), status=int(res.status),
         message=str(res.message), jac_cond=cond, std=np.sqrt(np.clip(np.diag(cov), 0, None)),
-        cov=cov, jac=J, trace_theta=np.array(trace_t), trace_cost=np.array(trace_c), n_data=n,
+        cov=cov, jac=J, trace_theta=np.array(problem.trace_t),
+        trace_cost=np.array(problem.trace_c), n_data=n,
     )
 
 

@@ -1,0 +1,64 @@
+"""The RK4 steps of many intervals laid out once (buckets of similar length, time-major, padded
+with identity steps) for repeated integration under different rate models (method.md M5)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imucal.numerics.rk4.buckets import lay_out, length_buckets
+from imucal.numerics.rk4.hamilton import Vec
+from imucal.numerics.rk4.integrate import integrate_buckets
+from imucal.numerics.rk4.variational import sensitivity
+
+
+class StepLayout:
+    """The RK4 steps of many transitions, laid out once for repeated integration.
+
+    Transition k takes ``ends[k] - starts[k]`` steps from sample ``starts[k]`` on the
+    timestamps ``t``. Each bucket (:class:`~imucal.numerics.rk4.buckets.Bucket`) holds the
+    transitions ``idx`` as time-major arrays: the sample index of every step's start (``i0``,
+    (L + 1, K_b): the last row is the end of the last step), which of those samples belong to
+    the transition (``valid``), and every step's ``dt`` (L, K_b; 0 for padding) and ``dt^2``.
+    """
+
+    def __init__(self, t: np.ndarray, starts: np.ndarray, ends: np.ndarray):
+        t = np.asarray(t, float)
+        self.starts = np.asarray(starts, np.int64)
+        self.ends = np.asarray(ends, np.int64)
+        self.n = len(self.starts)
+        n_steps = self.ends - self.starts
+        self.buckets = [lay_out(t, self.starts, n_steps, idx) for idx in length_buckets(n_steps)]
+
+    def gather(self, comps: list[np.ndarray]) -> list[Vec]:
+        """The samples of every transition, per bucket ((L + 1, K_b) per component, zero in the
+        padding): step j runs from row j to row j + 1, so each sample is calibrated once."""
+        return [tuple(np.where(valid, c[i0], 0.0) for c in comps)
+                for _, i0, valid, _, _ in self.buckets]
+
+    def integrate(self, samples: list[Vec], models: list[tuple] | None = None) -> np.ndarray:
+        """Quaternions (k, K, 4), normalised, of every transition under each of k models
+        ``(M, b)`` (``w = M (w - b)``, M4; ``None``: the rates as they are), from
+        :meth:`gather`'s ``samples`` (:func:`~imucal.numerics.rk4.integrate.integrate_buckets`).
+        """
+        return integrate_buckets(self.buckets, self.n, samples, models)
+
+    def sensitivity(self, samples: list[Vec], M: np.ndarray, b: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Every transition's rotation (n, 4) and ``S`` (n, 3, 3, 4), what a fit's Jacobian
+        needs for the model ``w = M (w_raw - b)`` (M4)
+        (:func:`~imucal.numerics.rk4.variational.sensitivity`)."""
+        return sensitivity(self.buckets, self.n, samples, M, b)
+
+
+def integrate_transitions(w: np.ndarray, t: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                          ) -> np.ndarray:
+    """Body rotation over each interval ``[t[starts[k]], t[ends[k]]]`` from q = identity.
+
+    ``w`` (M, 3) calibrated rates in rad/s at times ``t`` (M,); transition k takes
+    ``ends[k] - starts[k]`` RK4 steps on the real timestamps. Returns (K, 4) quaternions.
+    """
+    if len(starts) == 0:
+        return np.zeros((0, 4))
+    layout = StepLayout(t, starts, ends)
+    comps = [np.ascontiguousarray(w[:, i], dtype=float) for i in range(3)]
+    return layout.integrate(layout.gather(comps))[0]
