@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import time
 import zipfile
 from pathlib import Path
 
@@ -481,15 +480,12 @@ def test_empty_fields_are_missing_samples(tmp_path):
 def test_real_imu_tk_xsens_two_files(shared_data):
     acc_path = shared_data / "imu_tk_xsens/xsens_acc.mat"
     gyro_path = shared_data / "imu_tk_xsens/xsens_gyro.mat"
-    start = time.perf_counter()
-    s = load_session(acc_path, gyro_path=gyro_path)
-    elapsed = time.perf_counter() - start
+    s = load_session(acc_path, gyro_path=gyro_path)  # its speed is measured in bench/run.py
     assert s.acc.shape == (51175, 3) and s.gyro.shape == (51175, 3)
     assert s.acc_unit == "counts" and s.gyro_unit == "counts"
     assert s.t_acc[0] == pytest.approx(0.02984) and s.t_acc[-1] == pytest.approx(511.718)
     assert s.acc[0].tolist() == [33108.0, 33329.0, 36429.0]
     assert s.source == "xsens_acc.mat + xsens_gyro.mat"
-    assert elapsed < 0.5  # about 0.05 s; generous for loaded CI machines
 
 
 def test_real_mikoff_mpu9150(shared_data):
