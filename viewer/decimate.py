@@ -1,33 +1,39 @@
 """How many rows a signal gets in the recording: as many as a screen can show, plus the still
-samples of the accelerometer's magnitude at full rate.
+samples of the accelerometer's magnitude at full rate up to a bound.
 
 Why bounded. The viewer holds every logged row in memory and, for every frame, walks every row
-of a plot's visible range. Measured (``bench/viewer_open.md``): with the per-axis plots at
-100 000 rows and both magnitudes at full rate in the still blocks, a 60-minute 1 kHz session
-took several times the sample's time to open and ~1 GB. A plot is at most ~1600 pixels wide,
-so more than a few min/max pairs per pixel column cannot be seen until one zooms in; beyond
-``SCREEN_ROWS`` rows a signal is drawn as a min/max envelope of that many rows, whatever the
-session's length, so a long recording opens in about the time of a short one.
+of a plot's visible range; its picture settles only once it has drawn them all. Measured
+(``bench/viewer_open.md``, headless native viewer, minimums of repeated opens): with the
+per-axis plots at 100 000 rows and both magnitudes at full rate in the still blocks, a 60-minute
+1 kHz session took 6.9x the sample's time to settle and 2.5x its memory, a 2-hour one 22x and
+3.6x. A plot is at most ~1600 pixels wide, so more than a few min/max pairs per pixel column
+cannot be seen until one zooms in: past ``SCREEN_ROWS`` samples a signal is drawn as a min/max
+envelope of that many rows, whatever the session's length. With the bounds below both open in
+1.1x the sample's time and memory.
 
 What stays at full rate, and why only that.
 
 - The accelerometer's magnitude inside the still blocks, raw and calibrated: that is where the
-  method looks (M3 fits ``|g| - |T K (a - b)|`` on the still blocks' samples) and where a person
-  judges the calibration to the milli-g, zooming into a block to see its noise around ``|g|``.
-  Every such sample is logged as it is, up to ``STILL_ROWS`` of them (about 1000 s at 1 kHz,
-  i.e. every still sample of any session up to half an hour at 1 kHz). Past that the still
-  blocks alone (an hour of 1 kHz data in a 2-hour session) would be what the viewer chokes on
-  (measured: see ``bench/viewer_open.md``), so they become a min/max envelope too, of buckets
-  made as small as ``STILL_ROWS`` allows (a few samples each, each inside one block): the noise
-  band of every block and its extremes are kept exactly, and the block's mean, what the fit
-  uses, is logged at full precision per block (``blocks/norm_error_mg``). What was chosen is
-  recorded beside the signal (:class:`Decimation`).
+  method looks (M3 fits ``|g| - |T K (a - b)|`` to the still blocks) and where a person judges
+  the calibration to the milli-g, zooming into a block to see its noise around ``|g|``. Every
+  such sample is logged as it is, up to ``STILL_ROWS`` of them (~200 s of 1 kHz data: every
+  still sample of a session up to ~6 minutes at 1 kHz or ~1 hour at 100 Hz, the sample's
+  rate). Past that the still blocks alone (an hour of 1 kHz data in a 2-hour session) are what
+  the viewer chokes on: measured, keeping them all (everything else bounded) took the 60- and
+  120-minute sessions to 3.2x and 7.2x the sample's time (1.8x, 2.5x its memory), a bound of
+  1 000 000 to 2.3x and 1.9x. So past ``STILL_ROWS`` they become a min/max envelope too, of
+  buckets made as small as that allows, each inside one block (18 samples, 18 ms, for the
+  60-minute session; 35 for the 2-hour one: still ~70 min/max pairs in its median 2.4 s
+  block): every block's noise band and extremes are kept exactly, and its mean, the number the
+  fit uses, is logged at full precision per block (``blocks/norm_error_mg``). What
+  was chosen is recorded beside the signal (:class:`Decimation`, AnyValues on its entity).
 - Everything else is a min/max envelope: the per-axis plots of both sensors and the detector's
-  statistic (``SCREEN_ROWS`` over the whole session), the magnitudes between the blocks, and the
-  gyroscope's magnitude in the blocks too (the method uses the gyroscope's still samples only
-  through their mean, the bias ``b_g`` of M4; its fit is judged by the gravity angles of M5,
-  logged per block), in buckets that never straddle a block's edge, so a block starts and ends
-  where it does and its envelope shows only still samples.
+  statistic (``SCREEN_ROWS`` over the whole session: shapes, turns and peaks, nothing judged
+  to the sample), the magnitudes between the blocks, and the gyroscope's magnitude in the
+  blocks too (the method uses the gyroscope's still samples only through their mean, the bias
+  ``b_g`` of M4; its fit is judged by the gravity angles of M5, logged per block). Buckets
+  never straddle a block's edge, so a block starts and ends where it does and its envelope
+  holds only still samples.
 
 An envelope: consecutive samples are cut into buckets of one size; each bucket becomes two rows
 which hold, per column, the bucket's minimum and maximum in the order they occur (so a rise
@@ -47,9 +53,9 @@ from imucal.numerics.windows import runs_of_true
 # A plot is ~1600 pixels wide at most: 10 000 min/max buckets leave ~6 per pixel column, so
 # zooming in 6x still shows every extreme before the envelope's steps show.
 SCREEN_ROWS = 20_000
-# The accelerometer's still samples kept at full rate, at most: ~1000 s of 1 kHz data. Chosen
+# The accelerometer's still samples kept at full rate, at most: ~200 s of 1 kHz data. Chosen
 # by measurement (bench/viewer_open.md) as what the viewer opens in about the sample's time.
-STILL_ROWS = 1_000_000
+STILL_ROWS = 200_000
 
 # Kept for scripts that read the old names: a signal longer than this is an envelope of at
 # most this many rows.
