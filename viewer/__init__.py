@@ -5,7 +5,7 @@
 - :mod:`viewer.blueprint` — the layout stored in every ``.rrd``.
 - :mod:`viewer.app` — ``view(target, save=..., web=..., port=...)`` and ``main()``.
 - :mod:`viewer.readback` — the numbers back out of an ``.rrd`` (scripts, tests).
-- :mod:`viewer.decimate` — the min/max envelope used for long per-axis signals.
+- :mod:`viewer.decimate` — how many rows a signal gets: a screen's worth, min/max envelopes.
 - one module per tab maps the core's arrays onto entities: :mod:`viewer.signals`,
   :mod:`viewer.gravity`, :mod:`viewer.lcurve`, :mod:`viewer.optimiser`, :mod:`viewer.summary`
   (the markdown summary is :mod:`imucal.report`, the CLI's summary too); helpers in

@@ -1,37 +1,105 @@
-"""Min/max envelope decimation: fewer rows for a plot, every peak kept.
+"""How many rows a signal gets in the recording: as many as a screen can show, plus the still
+samples of the accelerometer's magnitude at full rate up to a bound.
 
-A signal longer than ``max_rows`` is cut into equal buckets of consecutive samples; each bucket
-becomes two rows, which hold, per column, the bucket's minimum and maximum in the order they
-occur (so a rise stays a rise). The two rows are stamped with the times of the bucket's first
-and middle sample: a peak is drawn at most one bucket (``len / (max_rows / 2)`` samples) away
-from where it happened, and never lost. Vectorised: no loop over buckets.
+Why bounded. The viewer holds every logged row in memory and, for every frame, walks every row
+of a plot's visible range; its picture settles only once it has drawn them all. Measured
+(``bench/viewer_open.md``, headless native viewer, minimums of repeated opens): with the
+per-axis plots at 100 000 rows and both magnitudes at full rate in the still blocks, a 60-minute
+1 kHz session took 6.9x the sample's time to settle and 2.5x its memory, a 2-hour one 22x and
+3.6x. A plot is at most ~1600 pixels wide, so more than a few min/max pairs per pixel column
+cannot be seen until one zooms in: past ``SCREEN_ROWS`` samples a signal is drawn as a min/max
+envelope of that many rows, whatever the session's length. With the bounds below both open in
+1.1x the sample's time and memory.
 
-:func:`detail_envelope` keeps chosen samples (the still blocks, where the method looks at the
-signal) at full rate and decimates only the rest, in buckets that never straddle a kept stretch.
+What stays at full rate, and why only that.
+
+- The accelerometer's magnitude inside the still blocks, raw and calibrated: that is where the
+  method looks (M3 fits ``|g| - |T K (a - b)|`` to the still blocks) and where a person judges
+  the calibration to the milli-g, zooming into a block to see its noise around ``|g|``. Every
+  such sample is logged as it is, up to ``STILL_ROWS`` of them (~200 s of 1 kHz data: every
+  still sample of a session up to ~6 minutes at 1 kHz or ~1 hour at 100 Hz, the sample's
+  rate). Past that the still blocks alone (an hour of 1 kHz data in a 2-hour session) are what
+  the viewer chokes on: measured, keeping them all (everything else bounded) took the 60- and
+  120-minute sessions to 3.2x and 7.2x the sample's time (1.8x, 2.5x its memory), a bound of
+  1 000 000 to 2.3x and 1.9x. So past ``STILL_ROWS`` they become a min/max envelope too, of
+  buckets made as small as that allows, each inside one block (18 samples, 18 ms, for the
+  60-minute session; 35 for the 2-hour one: still ~70 min/max pairs in its median 2.4 s
+  block): every block's noise band and extremes are kept exactly, and its mean, the number the
+  fit uses, is logged at full precision per block (``blocks/norm_error_mg``). What
+  was chosen is recorded beside the signal (:class:`Decimation`, AnyValues on its entity).
+- Everything else is a min/max envelope: the per-axis plots of both sensors and the detector's
+  statistic (``SCREEN_ROWS`` over the whole session: shapes, turns and peaks, nothing judged
+  to the sample), the magnitudes between the blocks, and the gyroscope's magnitude in the
+  blocks too (the method uses the gyroscope's still samples only through their mean, the bias
+  ``b_g`` of M4; its fit is judged by the gravity angles of M5, logged per block). Buckets
+  never straddle a block's edge, so a block starts and ends where it does and its envelope
+  holds only still samples.
+
+An envelope: consecutive samples are cut into buckets of one size; each bucket becomes two rows
+which hold, per column, the bucket's minimum and maximum in the order they occur (so a rise
+stays a rise), stamped with the times of the bucket's first and middle sample: a peak is drawn
+at most one bucket away from where it happened, and never lost. Vectorised: no loop over
+buckets or runs.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from imucal.numerics.windows import runs_of_true
 
-DECIMATE_ABOVE = 200_000  # signals longer than this are drawn as an envelope
-ENVELOPE_ROWS = 100_000  # rows of that envelope, at most
+# A plot is ~1600 pixels wide at most: 10 000 min/max buckets leave ~6 per pixel column, so
+# zooming in 6x still shows every extreme before the envelope's steps show.
+SCREEN_ROWS = 20_000
+# The accelerometer's still samples kept at full rate, at most: ~200 s of 1 kHz data. Chosen
+# by measurement (bench/viewer_open.md) as what the viewer opens in about the sample's time.
+STILL_ROWS = 200_000
+
+# Kept for scripts that read the old names: a signal longer than this is an envelope of at
+# most this many rows.
+DECIMATE_ABOVE = ENVELOPE_ROWS = SCREEN_ROWS
+
+
+@dataclass(frozen=True)
+class Decimation:
+    """What one logged signal is: ``rows`` logged from ``samples``; inside the still blocks
+    ``still_bucket`` samples per min/max pair (1: every sample as it is), outside them
+    ``moving_bucket`` (1: every sample)."""
+
+    samples: int
+    rows: int
+    still_bucket: int
+    moving_bucket: int
 
 
 def for_display(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A per-axis signal as it is logged: itself, or its envelope past ``DECIMATE_ABOVE``."""
-    return envelope(t, x, ENVELOPE_ROWS) if len(t) > DECIMATE_ABOVE else (t, x)
+    """A per-axis signal as it is logged: itself, or its envelope past ``SCREEN_ROWS``."""
+    return envelope(t, x, SCREEN_ROWS)
 
 
-def magnitudes_for_display(t: np.ndarray, v: np.ndarray, still: np.ndarray
-                           ) -> tuple[np.ndarray, np.ndarray]:
-    """A long signal's magnitudes: full rate in the still blocks, where the calibration is
-    judged to the milli-g, and a min/max envelope in between, where only the swings matter."""
-    if len(t) <= DECIMATE_ABOVE:
-        return t, v
-    return detail_envelope(t, v, still, ENVELOPE_ROWS)
+def magnitudes_for_display(t: np.ndarray, v: np.ndarray, still: np.ndarray, keep_still: bool
+                           ) -> tuple[np.ndarray, np.ndarray, Decimation]:
+    """Magnitudes as logged: with ``keep_still`` the still samples as they are while there are
+    at most ``STILL_ROWS`` of them (else an envelope of about that many rows), without it an
+    envelope of about ``SCREEN_ROWS`` rows there too (the gyroscope); the samples between the
+    blocks an envelope of about ``SCREEN_ROWS`` rows. No bucket crosses a block's edge."""
+    still_rows = STILL_ROWS if keep_still else SCREEN_ROWS
+    still = np.asarray(still, bool)
+    n_still = int(still.sum())
+    runs_still = runs_of_true(still)
+    runs_moving = runs_of_true(~still)
+    s_size = 1 if n_still <= still_rows else bucket_size(runs_still, still_rows)
+    m_size = 1 if len(t) - n_still <= SCREEN_ROWS else bucket_size(runs_moving, SCREEN_ROWS)
+    if s_size == 1 and m_size == 1:
+        return t, v, Decimation(len(t), len(t), 1, 1)
+    parts = [run_envelope(t, v, runs, size)
+             for runs, size in ((runs_still, s_size), (runs_moving, m_size))]
+    tt = np.concatenate([p[0] for p in parts])
+    order = np.argsort(tt, kind="stable")
+    vv = np.concatenate([p[1] for p in parts])[order]
+    return tt[order], vv, Decimation(len(t), len(tt), s_size, m_size)
 
 
 def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, np.ndarray]:
@@ -43,63 +111,60 @@ def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, n
     n = len(t)
     if n <= max_rows:
         return t, x
-    squeeze = x.ndim == 1
-    x2 = x[:, None] if squeeze else x
-    k = x2.shape[1]
-    n_buckets = max(max_rows // 2, 1)
-    size = -(-n // n_buckets)
-    n_buckets = -(-n // size)
-    pad = n_buckets * size - n
-    # Pad the last bucket by repeating its last sample: it changes neither its min nor its max.
-    xp = np.concatenate([x2, np.repeat(x2[-1:], pad, axis=0)]) if pad else x2
-    v = _min_max_rows(xp.reshape(n_buckets, size, k))
-    starts = np.arange(n_buckets) * size
-    last = np.minimum(starts + size, n) - 1
-    tt = np.column_stack([t[starts], t[(starts + last + 1) // 2]])
-    out = v.reshape(-1, k)
-    return tt.ravel(), (out[:, 0] if squeeze else out)
+    return run_envelope(t, x, np.array([[0, n]]), bucket_size(np.array([[0, n]]), max_rows))
 
 
-def detail_envelope(t: np.ndarray, x: np.ndarray, keep: np.ndarray, max_rows: int
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Samples where ``keep`` at full rate; every run of the others as a min/max envelope (at
-    most about ``max_rows`` rows over all runs), merged in time order.
+def bucket_size(runs: np.ndarray, max_rows: int) -> int:
+    """The smallest bucket size (samples) that cuts the ``[start, end)`` runs into at most
+    ``max_rows / 2`` buckets, each inside one run; at least one bucket per run however small
+    the budget (then 2 rows per run: a block stays a block)."""
+    lengths = runs[:, 1] - runs[:, 0]
+    if len(lengths) == 0:
+        return 1
+    budget = max(max_rows // 2, 1)
+    if budget <= len(lengths):
+        return int(lengths.max())
+    # The bucket count falls as the size grows; sum(ceil(L / s)) <= sum(L) / s + runs makes
+    # ``hi`` fit and nothing below sum(L) / budget can: bisect between the two.
+    total = int(lengths.sum())
+    lo, hi = max(-(-total // budget), 1), max(-(-total // (budget - len(lengths))), 1)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if int((-(-lengths // mid)).sum()) <= budget:
+            hi = mid
+        else:
+            lo = mid + 1
+    return hi
 
-    Each run of dropped samples is cut into buckets of one size, its last bucket padded by
-    repeating the run's last sample (which changes neither its min nor its max), so no bucket
-    reaches across a kept stretch and every row is stamped at a time inside its own run.
+
+def run_envelope(t: np.ndarray, x: np.ndarray, runs: np.ndarray, size: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The ``[start, end)`` runs of ``(t, x)`` in buckets of ``size`` samples (``size`` 1: the
+    samples themselves), each bucket inside one run, as min/max rows in time order.
+
+    A run's last bucket is padded by repeating the run's last sample (which changes neither its
+    min nor its max), so every row is stamped at a time inside its own run.
     """
-    keep = np.asarray(keep, bool)
     x2 = x[:, None] if x.ndim == 1 else x
-    starts, ends = runs_of_true(~keep).T
-    lengths = ends - starts
-    n_drop = int(lengths.sum())
-    budget = max_rows // 2 - len(starts)  # buckets left after one partial bucket per run
-    if n_drop == 0 or budget <= 0 or n_drop <= max_rows:
-        return t, x
-    size = max(-(-n_drop // budget), 1)
+    starts, lengths = runs[:, 0], runs[:, 1] - runs[:, 0]
+    if size == 1:
+        idx = _indices(starts, lengths, lengths)
+        return t[idx], x[idx]
     n_buckets = -(-lengths // size)  # per run
-    padded = n_buckets * size
-    # Gather index of the padded runs: position j of run r is sample starts[r] + min(j, L_r - 1)
-    run_of = np.repeat(np.arange(len(starts)), padded)
-    j = np.arange(int(padded.sum())) - np.repeat(np.cumsum(padded) - padded, padded)
-    idx = starts[run_of] + np.minimum(j, lengths[run_of] - 1)
+    idx = _indices(starts, lengths, n_buckets * size)
     k = x2.shape[1]
     v = _min_max_rows(x2[idx].reshape(-1, size, k))
-    first = idx[::size]
-    middle = idx[size // 2::size]
-    te = np.column_stack([t[first], t[middle]]).ravel()
-    tk = t[keep]
-    # Merge the two time-sorted sets: each envelope row goes after the kept samples before it
-    # (kept and dropped samples never share a time).
-    at = np.searchsorted(tk, te) + np.arange(len(te))
-    is_kept = np.ones(len(tk) + len(te), bool)
-    is_kept[at] = False
-    tt = np.empty(len(is_kept))
-    tt[at], tt[is_kept] = te, tk
-    out = np.empty((len(is_kept), k), dtype=x2.dtype)
-    out[at], out[is_kept] = v.reshape(-1, k), x2[keep]
-    return tt, (out[:, 0] if x.ndim == 1 else out)
+    te = np.column_stack([t[idx[::size]], t[idx[size // 2::size]]]).ravel()
+    out = v.reshape(-1, k)
+    return te, (out[:, 0] if x.ndim == 1 else out)
+
+
+def _indices(starts: np.ndarray, lengths: np.ndarray, padded: np.ndarray) -> np.ndarray:
+    """Sample index of every position of the runs, each run padded to ``padded`` positions by
+    repeating its last sample: position j of run r is ``starts[r] + min(j, lengths[r] - 1)``."""
+    run_of = np.repeat(np.arange(len(starts)), padded)
+    j = np.arange(int(padded.sum())) - np.repeat(np.cumsum(padded) - padded, padded)
+    return starts[run_of] + np.minimum(j, lengths[run_of] - 1)
 
 
 def _min_max_rows(xb: np.ndarray) -> np.ndarray:

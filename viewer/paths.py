@@ -17,7 +17,7 @@ ITERATION = "iteration"  # sequence: accepted Levenberg-Marquardt step, 0 = the 
 ACC_MAGNITUDE = "imu/accelerometer/magnitude"  # [raw, calibrated], full rate when still
 ACC_RAW = "imu/accelerometer/raw"  # [x, y, z], raw unit, min/max envelope when long
 ACC_CALIBRATED = "imu/accelerometer/calibrated"  # [x, y, z]
-GYRO_MAGNITUDE = "imu/gyroscope/magnitude"  # [raw, calibrated], rad/s, as acc
+GYRO_MAGNITUDE = "imu/gyroscope/magnitude"  # [raw, calibrated], rad/s, envelope when long
 GYRO_RAW = "imu/gyroscope/raw"
 GYRO_CALIBRATED = "imu/gyroscope/calibrated"
 

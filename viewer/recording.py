@@ -12,7 +12,7 @@ into the whole-session fit's lambda grid), ``iteration`` (sequence: accepted opt
 Entity path                                  Timeline   Content
 =========================================== ========== ============================================
 imu/accelerometer/magnitude                  time       Scalars [raw, calibrated], calibrated unit
-                                                        (g or m/s^2), every sample:
+                                                        (g or m/s^2), every still sample (**):
                                                         ``Result.raw_acc_norm`` (``|a_raw|`` through
                                                         the fit's nominal frame: the raw signal
                                                         itself for input in g or m/s^2; offset and
@@ -20,8 +20,8 @@ imu/accelerometer/magnitude                  time       Scalars [raw, calibrated
                                                         ``calibrated.acc_norm``
 imu/accelerometer/raw                        time       Scalars [x, y, z], raw unit (*)
 imu/accelerometer/calibrated                 time       Scalars [x, y, z], calibrated unit (*)
-imu/gyroscope/magnitude                      time       Scalars [raw, calibrated], rad/s, every
-                                                        sample: ``Result.raw_gyro_norm``
+imu/gyroscope/magnitude                      time       Scalars [raw, calibrated], rad/s (*):
+                                                        ``Result.raw_gyro_norm``
                                                         (``|w_raw|`` for input in rad/s; for raw
                                                         counts ``|w_raw - b_g|`` times the nominal
                                                         scale, first segment),
@@ -103,11 +103,15 @@ calibration/info                             static     AnyValues: source, sha25
                                                         warning_codes
 =========================================== ========== ============================================
 
-(*) Signals longer than ``DECIMATE_ABOVE`` samples are logged as a min/max envelope of at most
-``ENVELOPE_ROWS`` rows (:mod:`viewer.decimate`: every peak kept, drawn at most one bucket from
-where it happened). The magnitudes are logged at full rate, except that a long signal's
-stretches between still blocks become such an envelope too (the still blocks, the core's
-``Result.acc_still`` / ``gyro_still``, stay at full rate).
+(*) Signals longer than ``SCREEN_ROWS`` (20 000) samples are logged as a min/max envelope of at
+most that many rows, whatever the session's length (:mod:`viewer.decimate`, which says why:
+every peak kept, drawn at most one bucket from where it happened); the gyroscope's magnitude as
+such an envelope inside the still blocks and one between them, no bucket across a block's edge.
+(**) The accelerometer's magnitude keeps every still sample (the core's ``Result.acc_still``)
+as it is while there are at most ``STILL_ROWS`` of them (else an envelope of buckets of a few
+samples inside each block); between the blocks an envelope as (*). Each signal's entity holds
+static AnyValues ``samples``, ``rows``, ``still_bucket``, ``moving_bucket`` (samples per
+min/max pair; 1 = as they are): what was chosen for this session.
 
 Every number logged is the core's (``imucal.result.Result`` and the stage results it holds);
 this package only lays them out: log10 for the log-scale plots, arrow lengths, labels,
@@ -130,7 +134,7 @@ import rerun as rr
 from imucal.io.atomic import atomic_path
 
 from . import paths as P
-from .decimate import DECIMATE_ABOVE, ENVELOPE_ROWS
+from .decimate import DECIMATE_ABOVE, ENVELOPE_ROWS, SCREEN_ROWS, STILL_ROWS
 from .gravity import log_gravity
 from .lcurve import log_lcurves
 from .optimiser import log_iterations
@@ -140,8 +144,8 @@ from .summary import log_results, summary_markdown
 if TYPE_CHECKING:
     from imucal.result import Result
 
-__all__ = ["DECIMATE_ABOVE", "ENVELOPE_ROWS", "log_result", "new_recording", "save_recording",
-           "summary_markdown"]
+__all__ = ["DECIMATE_ABOVE", "ENVELOPE_ROWS", "SCREEN_ROWS", "STILL_ROWS", "log_result",
+           "new_recording", "save_recording", "summary_markdown"]
 
 
 def log_result(result: Result, rec: rr.RecordingStream) -> dict[str, int]:
