@@ -37,7 +37,7 @@ _CLASSES = {6: "f8", 7: "f4", 8: "i1", 9: "u1", 10: "i2", 11: "u2", 12: "i4", 13
             14: "i8", 15: "u8"}
 _COMPLEX = 0x0800
 _CHUNK = 1 << 20  # elements converted at a time: 8 MB of float64
-_READ = 1 << 22  # compressed bytes read at a time
+_READ = 1 << 20  # bytes read (and inflated) at a time
 _HEAD = 1 << 12  # bytes of a matrix element that hold its flags, dimensions and name
 
 
@@ -128,9 +128,10 @@ class _Inflating(_Stream):
         self.tail = b""  # input zlib has not consumed yet
 
     def read(self, n: int) -> bytes:
-        out = bytearray()
+        pieces: list[bytes] = []
+        got = 0
         try:
-            while len(out) < n and not self.z.eof:
+            while got < n and not self.z.eof:
                 if not self.tail:
                     if not self.left:
                         break
@@ -138,11 +139,12 @@ class _Inflating(_Stream):
                     self.tail = self.fh.read(min(_READ, self.left))
                     self.pos += len(self.tail)
                     self.left -= len(self.tail)
-                out += self.z.decompress(self.tail, n - len(out))
+                pieces.append(self.z.decompress(self.tail, n - got))
+                got += len(pieces[-1])
                 self.tail = self.z.unconsumed_tail
         except zlib.error:
             raise Unsupported("does not inflate") from None
-        return bytes(out)
+        return pieces[0] if len(pieces) == 1 else b"".join(pieces)
 
 
 def _skip(stream: _Stream, n: int) -> None:
