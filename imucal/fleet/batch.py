@@ -7,8 +7,11 @@ session's calib.json; it never raises: a bad file is a row with its error. A wor
 that dies is Dask's to recover: the scheduler reruns its tasks elsewhere, and ``retries``
 covers a task that raised on its way.
 
-Each worker runs its numerics single-threaded (BLAS thread variables set in the worker's
-environment before numpy loads), so that workers, not threads, use the cores.
+Each worker runs its numerics single-threaded (BLAS thread variables set in a LocalCluster
+worker's environment before numpy loads, and every job sets the loaded OpenBLAS libraries to
+one thread itself, for workers started by hand: :mod:`imucal.fleet.threads`), so that workers,
+not threads, use the cores. Each row says the BLAS threads the libraries reported and the
+worker process's peak memory so far.
 """
 
 from __future__ import annotations
@@ -137,8 +140,10 @@ def run_job(job: Job) -> dict[str, Any]:
     t0 = time.perf_counter()
     row = job.row()
     row["worker"] = _worker_address()
-    row["blas_threads"] = os.environ.get("OPENBLAS_NUM_THREADS")
     try:
+        from imucal.fleet.threads import blas_threads_text, limit_blas_threads
+
+        row["blas_threads"] = blas_threads_text(limit_blas_threads(1))
         from imucal.io.calibration_file import result_to_dict
         from imucal.io.load import load_session
         from imucal.pipeline import calibrate
@@ -168,7 +173,19 @@ def run_job(job: Job) -> dict[str, Any]:
     except Exception as e:  # a bug in imucal: the row says so, the batch goes on
         row |= {"status": "error", "error": f"internal error: {e.__class__.__name__}: {e}"}
     row["seconds"] = time.perf_counter() - t0
+    row["worker_peak_mb"] = _peak_rss_mb()
     return row
+
+
+def _peak_rss_mb() -> float | None:
+    """The worker process's peak resident memory so far, MB (None where unknown)."""
+    with contextlib.suppress(ImportError, OSError):
+        import resource
+        import sys
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return peak / (2**20 if sys.platform == "darwin" else 2**10)  # bytes there, KB here
+    return None
 
 
 def _write_json(path: Path, doc: dict) -> None:

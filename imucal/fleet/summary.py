@@ -29,7 +29,7 @@ _ID_COLUMNS: dict[str, str] = {
     "recorded_at": "datetime", "recorded_from": "str", "calibrated_at": "datetime",
     "sha256": "str", "settings_hash": "str", "spec_hash": "str", "status": "str", "error": "str",
     "duplicate_of": "str", "calib_path": "str", "worker": "str", "blas_threads": "str",
-    "seconds": "float",
+    "seconds": "float", "worker_peak_mb": "float",
 }
 _RESULT_COLUMNS: dict[str, str] = {
     "acc_unit_raw": "str", "gyro_unit_raw": "str", "duration_s": "float", "static_blocks": "int",

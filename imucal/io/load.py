@@ -95,6 +95,7 @@ def load_session(
         parts = _extract(read_file(paths[0]), ("acc",), opts)
         parts.update(_extract(read_file(paths[1]), ("gyro",), opts))
     if gyro_path is None and "gyro" in parts:
+        _share_equal_time(parts["acc"], parts["gyro"])
         own_rows(parts["acc"], parts["gyro"], opts)
 
     acc, t_acc = settle_time(parts["acc"], opts)
@@ -196,6 +197,20 @@ def _sha256(paths: list[Path]) -> str:
                 digest.update(chunk)
     return digest.hexdigest()
 
+
+
+def _share_equal_time(acc: Part, gyro: Part, rows: int = 1 << 16) -> None:
+    """One time array for both sensors when their time variables hold the same values (a .mat
+    with t_acc and t_gyro, as imucal synth writes): the session then holds one copy, 170 MB
+    less at 6 hours of 1 kHz. Compared a block at a time, with no signal-sized temporary."""
+    a, b = acc.time, gyro.time
+    if (a is None or b is None or a is b or a.shape != b.shape or a.dtype != np.float64
+            or b.dtype != np.float64):
+        return
+    for lo in range(0, len(a), rows):  # bit for bit: 0.0 and -0.0 are not the same time
+        if not np.array_equal(a[lo:lo + rows].view(np.int64), b[lo:lo + rows].view(np.int64)):
+            return
+    gyro.time = a
 
 
 def _scale_named_unit(values: np.ndarray, part: Part, notes: list[str]) -> np.ndarray:

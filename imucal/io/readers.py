@@ -93,6 +93,17 @@ def _as_matrix(value: object) -> np.ndarray | None:
 
 
 def _read_mat5(path: Path) -> Variables:
+    """Numeric variables straight from the file into their arrays (:mod:`imucal.io.load_mat5`);
+    a file that reader does not follow the general way: checked, then read by scipy."""
+    from imucal.io.load_mat5 import Unsupported, read_mat5_arrays
+
+    try:
+        return Variables(path.name, read_mat5_arrays(path))
+    except Unsupported:
+        return _read_mat5_general(path)
+
+
+def _read_mat5_general(path: Path) -> Variables:
     from scipy.io import loadmat
 
     from imucal.io.mat5_check import CorruptMat, check_mat5

@@ -67,8 +67,11 @@ def settle_time(part: Part, opts: LoadOptions) -> tuple[np.ndarray, np.ndarray]:
         unit = _time_unit(part, opts)
         if unit == "s" and part.time_unit is None and not part.time_is_datetime:
             unit = _unit_from_steps(time, part, opts)
-        with np.errstate(over="ignore", invalid="ignore"):  # non-finite times are refused below
-            t = time * TIME_UNITS[unit]
+        if TIME_UNITS[unit] == 1.0 and time.dtype == np.float64:
+            t = time  # seconds already: no signal-sized copy (x * 1.0 == x)
+        else:
+            with np.errstate(over="ignore", invalid="ignore"):  # non-finite: refused below
+                t = time * TIME_UNITS[unit]
         if opts.rate is not None:
             opts.notes.append(f"{label} timestamps taken from {part.time_label} of {source}; "
                               "the given rate is not used")

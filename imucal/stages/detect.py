@@ -202,10 +202,13 @@ def isolated_outliers(x: np.ndarray) -> np.ndarray:
         return np.zeros(0, np.int64)
     stride = max(1, n // 200_000)
     found = []
+    e = np.empty(n)  # one buffer for every axis: no signal-sized temporaries (issue 12)
     for j in range(x.shape[1]):
         c = x[:, j]
-        p = np.concatenate([c[2:0:-1], c, c[-2:-4:-1]])  # mirrored about both ends
-        e = p[1:n + 1] + p[3:n + 3]
+        # e = c - (c_prev + c_next) / 2, the ends mirrored (c_-1 = c_1, c_n = c_(n-2)), in
+        # the order of operations it always had: sum, times -0.5, plus c.
+        np.add(c[:-2], c[2:], out=e[1:-1])
+        e[0], e[-1] = c[1] + c[1], c[-2] + c[-2]
         e *= -0.5
         e += c
         np.abs(e, out=e)
@@ -215,11 +218,20 @@ def isolated_outliers(x: np.ndarray) -> np.ndarray:
         if scale == 0.0 or not np.isfinite(scale):
             continue
         i = np.flatnonzero(e > SPIKE_NOISE * scale)  # few: the steps only there
-        q = i + 2  # index into p
-        steps = np.maximum.reduce([np.abs(p[q + 1] - p[q - 1]), np.abs(p[q + 2] - p[q + 1]),
-                                   np.abs(p[q - 1] - p[q - 2])]) if len(i) else np.zeros(0)
+        if len(i):
+            prev2, prev, nxt, nxt2 = (c[_mirrored(i + d, n)] for d in (-2, -1, 1, 2))
+            steps = np.maximum.reduce([np.abs(nxt - prev), np.abs(nxt2 - nxt),
+                                       np.abs(prev - prev2)])
+        else:
+            steps = np.zeros(0)
         found.append(i[e[i] > SPIKE_ISOLATION * steps])
     return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
+
+
+def _mirrored(k: np.ndarray, n: int) -> np.ndarray:
+    """Indices reflected about both ends (-1 -> 1, n -> n - 2), as the ends are mirrored."""
+    k = np.where(k < 0, -k, k)
+    return np.where(k > n - 1, 2 * (n - 1) - k, k)
 
 
 def without_outliers(x: np.ndarray, outliers: np.ndarray) -> np.ndarray:

@@ -109,7 +109,8 @@ def test_batch_on_a_local_cluster(fleet, capsys) -> None:
         assert row["recorded_from"] == "pattern {date}"
         assert row["sha256"] == __import__("hashlib").sha256(
             (root / "in" / name).read_bytes()).hexdigest()
-        assert row["blas_threads"] == "1"
+        assert row["blas_threads"] == "1"  # what OpenBLAS reports, not a variable
+        assert 50 < row["worker_peak_mb"] < 2000
         assert row["worker"].startswith("tcp://127.0.0.1:")
         _check_against_truth(row, truths[name])
         assert row["spec_pass"] is (name != OUT_OF_SPEC), (name, row["spec_broken"])
@@ -208,3 +209,80 @@ def test_batch_refuses_bad_options(fleet, capsys) -> None:
     assert main(["batch", str(root / "in/*/*.mat"), "--out-dir", str(root / "x"),
                  "--device-from", "{date}_*.mat"]) == 1
     assert "{device}" in capsys.readouterr().err
+
+
+def test_a_worker_killed_mid_batch_costs_nothing_but_a_retry(fleet, capsys) -> None:
+    """Two workers as separate processes; one is killed (SIGKILL) as soon as the first session
+    is written, while the others are still running or queued: Dask reruns its tasks on the
+    other worker and every row is there and right."""
+    import signal
+    import threading
+
+    root, truths = fleet
+    dask = str(Path(sys.executable).with_name("dask"))
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    # Workers started by hand from a shell that says nothing of BLAS threads (and OpenBLAS
+    # not told either way through its variables): each job limits the threads itself.
+    blas_vars = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    env = {k: v for k, v in os.environ.items() if k not in blas_vars}
+    env["DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON"] = "{}"
+    quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                               "--no-dashboard"], **quiet)]
+    out_dir = root / "killed"
+    killed: dict[str, object] = {}
+
+    def kill_one_worker_mid_batch() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if any(out_dir.glob("*/*.calib.json")):
+                victim = procs[1]
+                killed["alive"] = victim.poll() is None
+                killed["summary_written"] = (out_dir / "summary.parquet").exists()
+                killed["done"] = len(list(out_dir.glob("*/*.calib.json")))
+                os.killpg(victim.pid, signal.SIGKILL)  # the worker and its children
+                return
+            time.sleep(0.02)
+
+    try:
+        time.sleep(1.0)
+        for _ in range(2):  # --no-nanny: the worker is the process that dies, nobody restarts it
+            procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--host",
+                                           "127.0.0.1", "--no-dashboard", "--no-nanny"],
+                                          start_new_session=True, **quiet))
+        from distributed import Client
+
+        with Client(address, timeout="20s") as client:
+            client.wait_for_workers(2, timeout=60)
+        killer = threading.Thread(target=kill_one_worker_mid_batch)
+        killer.start()
+        rc = main(["batch", str(root / "in" / "*" / "*.mat"), "--out-dir", str(out_dir),
+                   "--device-from", "{device}/{date}_*.mat", "--scheduler", address])
+        killer.join()
+        out = capsys.readouterr().out
+        assert killed == {"alive": True, "summary_written": False, "done": killed["done"]}
+        assert killed["done"] < 8  # the kill came before the last session was written
+        assert procs[1].wait(timeout=10) == -signal.SIGKILL
+        assert rc == 1, out  # the corrupt file
+        assert "10: 8 calibrated, 1 failed, 1 skipped (1 duplicate)" in out
+        df = pl.read_parquet(out_dir / "summary.parquet")
+        rows = {str(Path(r["path"]).relative_to(root / "in")): r for r in df.to_dicts()}
+        assert sorted(rows) == sorted([*truths, "devA/2024-05-09_s.mat"])
+        assert rows.pop("devA/2024-05-09_s.mat")["status"] == "failed"
+        assert rows.pop("devB/2024-06-01_s.mat")["status"] == "duplicate"
+        for name, row in rows.items():
+            assert row["status"] == "ok", (name, row["error"])
+            assert row["blas_threads"] == "1"  # what OpenBLAS reports, not a variable
+            assert 50 < row["worker_peak_mb"] < 2000
+            _check_against_truth(row, truths[name])
+            assert (out_dir / f"{name[:-4]}.calib.json").exists()
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
