@@ -31,9 +31,10 @@ AXES = "xyz"
 # A wrap-around is a step of 2^n counts (n >= WRAP_MIN_BITS) at least WRAP_FACTOR times the
 # signal's own 99th-percentile step, and within WRAP_TOL of those steps of the power of two (what
 # the signal really moved across the wrap). On the Xsens recording (raw 16-bit counts spanning
-# nearly the whole register) the largest step is 6 times the 99th percentile: no false alarm.
+# nearly the whole register) the largest step is 6 times the 99th percentile: no false alarm,
+# and a wrap at the fastest change of such a signal is still within WRAP_TOL.
 WRAP_FACTOR = 16.0
-WRAP_TOL = 4.0
+WRAP_TOL = 8.0
 WRAP_MIN_BITS = 8
 # A time step this many times the median step is a gap (9 or more samples missing); short drops
 # (up to 5 NaN samples) are bridged by the loader. The real recordings' largest step is 1.04x.
@@ -85,12 +86,13 @@ def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str
     """The correction that unwraps one axis, with where it applies; None if it never wraps."""
     d = np.diff(x)
     a = np.abs(d)
-    step = max(float(np.quantile(a, 0.99)), 1.0)  # the signal's own rate of change
-    with np.errstate(divide="ignore"):
-        bits = np.rint(np.log2(np.maximum(a, 1.0)))
+    bits = np.rint(np.log2(np.maximum(a, 1.0)))
     width = 2.0 ** bits
-    wrap = ((a >= WRAP_FACTOR * step) & (bits >= WRAP_MIN_BITS)
-            & (np.abs(a - width) <= WRAP_TOL * step))
+    # The signal's own rate of change: its steps less those within 10 % of a power of two
+    # (frequent wraps would otherwise make the wraps themselves the usual step).
+    near = (bits >= WRAP_MIN_BITS) & (np.abs(a - width) <= 0.1 * width)
+    step = max(float(np.quantile(a[~near], 0.99)) if not near.all() else 0.0, 1.0)
+    wrap = near & (a >= WRAP_FACTOR * step) & (np.abs(a - width) <= WRAP_TOL * step)
     idx = np.flatnonzero(wrap)
     if idx.size == 0:
         return None  # large jumps that are no power of two are not wraps (a knock, a glitch)
