@@ -210,6 +210,16 @@ def test_gyroscope_covering_half_the_session(clean5, monkeypatch):
     assert _gravity_after(imucal.calibrate(half, single_segment=True)) > 10.0
 
 
+def test_gyroscope_covering_no_turn_is_refused(clean5):
+    session, truth, _ = clean5
+    n = int(np.mean(truth.pose_times[0]) * 100)  # ends during the first still pose
+    short = dataclasses.replace(session, gyro=session.gyro[:n], t_gyro=session.t_gyro[:n])
+    with pytest.raises(ImucalError) as err:
+        imucal.calibrate(short, single_segment=True)
+    assert str(err.value).startswith("gyroscope: rotations: none of the 29 rotations between "
+                                     "still poses has usable gyroscope data"), str(err.value)
+
+
 def test_gap_inside_a_still_pose_splits_its_block(clean5):
     session, _, clean = clean5
     blocks = clean.detection.blocks

@@ -12,7 +12,8 @@ them (issue 11, item 5). Each is found in the signal itself and named where it h
 - Two files of different lengths read at one rate (checked by the loader, the only one to know
   that the timestamps come from ``--rate``).
 
-Everything is vectorised: a few passes over the signal, no loop over samples.
+Warning codes: ``acc_wraparound``, ``gyro_wraparound``, ``time_gap``, ``gyro_no_data``,
+``lengths_differ``. Everything is vectorised: a few passes over the signal, no loop over samples.
 """
 
 from __future__ import annotations
