@@ -210,6 +210,15 @@ def test_gyroscope_covering_half_the_session(clean5, monkeypatch):
     assert _gravity_after(imucal.calibrate(half, single_segment=True)) > 10.0
 
 
+def test_time_gaps_on_a_batching_logger():
+    """Samples stamped in batches (ten 1 ms apart, then 91 ms): a regular long step, no gap;
+    five minutes inside such a clock still is one."""
+    t = np.cumsum(np.tile(np.r_[np.full(9, 0.001), 0.091], 1000))
+    assert len(time_gaps(t)) == 0
+    t[5000:] += 300.0
+    assert time_gaps(t).tolist() == [4999]
+
+
 def test_gyroscope_covering_no_turn_is_refused(clean5):
     session, truth, _ = clean5
     n = int(np.mean(truth.pose_times[0]) * 100)  # ends during the first still pose

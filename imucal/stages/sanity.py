@@ -37,8 +37,10 @@ AXES = "xyz"
 WRAP_FACTOR = 16.0
 WRAP_TOL = 8.0
 WRAP_MIN_BITS = 8
-# A time step this many times the median step is a gap (9 or more samples missing); short drops
-# (up to 5 NaN samples) are bridged by the loader. The real recordings' largest step is 1.04x.
+# A time step this many times the 99th-percentile step is a gap (on a steady clock: 9 or more
+# samples missing); short drops (up to 5 NaN samples) are bridged by the loader. The percentile,
+# not the median: a logger that stamps samples in batches has a regular long step that is no
+# gap. The real recordings' largest step is 1.04 times their median.
 GAP_FACTOR = 10.0
 # Two files read at one rate may differ in length by this share of the longer one (a logger
 # stopped a moment later) with a warning; beyond it the pairing is refused (see one_rate_pairing).
@@ -136,11 +138,12 @@ def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str
 
 
 def time_gaps(t: np.ndarray) -> np.ndarray:
-    """Indices ``i`` where ``t[i + 1] - t[i]`` is a gap (GAP_FACTOR times the median step)."""
+    """Indices ``i`` where ``t[i + 1] - t[i]`` is a gap (GAP_FACTOR times the 99th-percentile
+    step)."""
     if t is None or len(t) < 3:
         return np.zeros(0, np.int64)
     step = np.diff(t)
-    return np.flatnonzero(step > GAP_FACTOR * np.median(step))
+    return np.flatnonzero(step > GAP_FACTOR * np.quantile(step, 0.99))
 
 
 def gap_warnings(session: Session) -> list[RunWarning]:
