@@ -223,7 +223,8 @@ def coverage_warning(session: Session, block_times: np.ndarray) -> RunWarning | 
                        "block k to k+1)")
     return RunWarning("gyro_no_data", f"the gyroscope ({sensor_files(session)[1]}: t = "
                       f"{tg[0]:.2f}-{tg[-1]:.2f} s; the accelerometer: t = {ta[0]:.2f}-"
-                      f"{ta[-1]:.2f} s) has no data for {' and '.join(missing)}; turns without "
+                      f"{ta[-1]:.2f} s) has no data (outside its span or across a time gap) for "
+                      f"{' and '.join(missing)}; turns without "
                       "gyroscope data are left out of the gyroscope fit and of the gravity "
                       "prediction error")
 
