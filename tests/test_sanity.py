@@ -175,6 +175,28 @@ def test_real_recordings_raise_no_false_alarm(shared_data):
         assert len(time_gaps(s.t_acc)) == 0 and len(time_gaps(s.t_gyro)) == 0, s.source
 
 
+def test_xsens_read_as_int16_is_unwrapped(shared_data, tmp_path):
+    """The Xsens recording (unsigned 16-bit counts, zero near 32768) written as int16, the
+    likely way of issue 11's case: 54 deg after when taken as it comes; unwrapped, the clean
+    file's 0.48 deg exactly (each axis a whole register off the original: the bias absorbs it)."""
+    src = shared_data / "imu_tk_xsens"
+    for name in ("xsens_acc.mat", "xsens_gyro.mat"):
+        m = np.loadtxt(src / name)
+        m[:, 1:] = np.where(m[:, 1:] > 32767, m[:, 1:] - 65536, m[:, 1:])
+        np.savetxt(tmp_path / name.replace(".mat", ".txt"), m, fmt=["%.6f"] + ["%d"] * 3)
+    session = imucal.load_session(tmp_path / "xsens_acc.txt", gyro_path=tmp_path / "xsens_gyro.txt")
+    clean = imucal.load_session(src / "xsens_acc.mat", gyro_path=src / "xsens_gyro.mat")
+    result = imucal.calibrate(session)
+    for fixed, raw in ((result.session.acc, clean.acc), (result.session.gyro, clean.gyro)):
+        off = fixed - raw
+        assert np.all(off == off[0]) and np.all(np.isin(off[0], (-65536, 0, 65536)))
+    codes = _codes(result)
+    assert "gyroscope x: " in codes["gyro_wraparound"]
+    assert "xsens_acc.txt" in codes["acc_wraparound"]
+    after = _gravity_after(result)
+    assert abs(after - _gravity_after(imucal.calibrate(clean))) < 1e-6 and after < 0.5
+
+
 # --- partial gyroscope coverage and gaps -------------------------------------------------------
 
 

@@ -29,11 +29,12 @@ from imucal.stages.detect import Detection
 from imucal.warning import RunWarning
 
 AXES = "xyz"
-# A wrap-around is a step of 2^n counts (n >= WRAP_MIN_BITS) at least WRAP_FACTOR times the
-# signal's own 99th-percentile step, and within WRAP_TOL of those steps of the power of two (what
-# the signal really moved across the wrap). On the Xsens recording (raw 16-bit counts spanning
-# nearly the whole register) the largest step is 6 times the 99th percentile: no false alarm,
-# and a wrap at the fastest change of such a signal is still within WRAP_TOL.
+# A wrap-around is a step of 2^n counts (n >= WRAP_MIN_BITS) across at least half the signal's
+# range, at least WRAP_FACTOR times the signal's own 99th-percentile step, and within WRAP_TOL of
+# those steps of the power of two (what the signal really moved across the wrap). On the Xsens
+# recording (raw 16-bit counts spanning nearly the whole register) the largest step is 6 times
+# the 99th percentile and a seventh of the range: no false alarm; read as int16 it wraps 1000s of
+# times at rest (its zero is 32768), once at a step that really moved 6680 counts (4.6 steps).
 WRAP_FACTOR = 16.0
 WRAP_TOL = 8.0
 WRAP_MIN_BITS = 8
@@ -89,13 +90,15 @@ def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str
     """The correction that unwraps one axis, with where it applies; None if it never wraps."""
     d = np.diff(x)
     a = np.abs(d)
+    span = float(x.max() - x.min())
+    # The signal's own rate of change: its steps of less than a quarter of its range (a wrap
+    # crosses most of it, so frequent wraps cannot pass for the usual step).
+    small = a[a < span / 4]
+    step = max(float(np.quantile(small, 0.99)) if len(small) else 0.0, 1.0)
     bits = np.rint(np.log2(np.maximum(a, 1.0)))
     width = 2.0 ** bits
-    # The signal's own rate of change: its steps less those within 10 % of a power of two
-    # (frequent wraps would otherwise make the wraps themselves the usual step).
-    near = (bits >= WRAP_MIN_BITS) & (np.abs(a - width) <= 0.1 * width)
-    step = max(float(np.quantile(a[~near], 0.99)) if not near.all() else 0.0, 1.0)
-    wrap = near & (a >= WRAP_FACTOR * step) & (np.abs(a - width) <= WRAP_TOL * step)
+    wrap = ((a >= span / 2) & (bits >= WRAP_MIN_BITS) & (a >= WRAP_FACTOR * step)
+            & (np.abs(a - width) <= WRAP_TOL * step))
     idx = np.flatnonzero(wrap)
     if idx.size == 0:
         return None  # large jumps that are no power of two are not wraps (a knock, a glitch)
@@ -107,7 +110,7 @@ def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str
                            source=file, field=what)
 
     widths = np.unique(width[idx])
-    if len(widths) > 1:
+    if len(widths) > 1:  # wraps of 2^15 and 2^16 in one signal: no one register
         i = int(idx[np.flatnonzero(width[idx] != widths[0])[0]])
         raise refuse(i, f"beside wrap-arounds of {widths[0]:.0f}: two register widths")
     W = float(widths[0])
