@@ -88,14 +88,16 @@ def unwrap_session(session: Session) -> tuple[Session, list[RunWarning]]:
 def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str
                  ) -> tuple[np.ndarray, str] | None:
     """The correction that unwraps one axis, with where it applies; None if it never wraps."""
-    d = np.diff(x)
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd values: no wrap, no warning
+        d = np.diff(x)
+        lo, hi = np.quantile(x, [0.001, 0.999])  # the range, blind to a few absurd samples
+        span = float(hi - lo)
     a = np.abs(d)
-    span = float(x.max() - x.min())
     # The signal's own rate of change: its steps of less than a quarter of its range (a wrap
     # crosses most of it, so frequent wraps cannot pass for the usual step).
     small = a[a < span / 4]
     step = max(float(np.quantile(small, 0.99)) if len(small) else 0.0, 1.0)
-    bits = np.rint(np.log2(np.maximum(a, 1.0)))
+    bits = np.minimum(np.rint(np.log2(np.maximum(a, 1.0))), 62.0)  # no register is wider
     width = 2.0 ** bits
     wrap = ((a >= span / 2) & (bits >= WRAP_MIN_BITS) & (a >= WRAP_FACTOR * step)
             & (np.abs(a - width) <= WRAP_TOL * step))
