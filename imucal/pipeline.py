@@ -26,6 +26,14 @@ from imucal.stages.detect_tuning import tune_detector
 from imucal.stages.group import block_mean_variance, group_blocks
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.quality import quality_figures
+from imucal.stages.sanity import (
+    coverage_warning,
+    gap_warnings,
+    input_warning,
+    split_at_gaps,
+    turns_without_gyro,
+    unwrap_session,
+)
 from imucal.stages.saturation import blocks_with, saturated_mask
 from imucal.warning import RunWarning
 
@@ -75,7 +83,10 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         raise ImucalError(str(e), source="settings") from None
     validate(session)
     # How the input was read (units guessed, gaps bridged...): the loader's notes.
-    warnings = [RunWarning("input", note) for note in session.notes]
+    warnings = [input_warning(note) for note in session.notes]
+    # Faults that would otherwise calibrate wrongly without a word (stages/sanity.py).
+    session, unwrapped = unwrap_session(session)
+    warnings += unwrapped + gap_warnings(session)
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 
     det, stated = _detect(session, settings, g_in)
@@ -83,6 +94,7 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         warnings.append(RunWarning("detector_reference", det.note))
     if det.outlier_note:  # isolated absurd samples, left out of every still block (§1)
         warnings.append(RunWarning("acc_outliers", det.outlier_note))
+    det = split_at_gaps(det, session.acc, session.t_acc)
     det, excluded = _drop_saturated(session.acc, det)
     if excluded:
         warnings.append(RunWarning("acc_saturated_blocks", f"excluded {excluded} static block(s) "
@@ -100,6 +112,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                        "under-measured; turn more slowly"))
     block_times = np.column_stack([session.t_acc[det.blocks[:, 0]],
                                    session.t_acc[det.blocks[:, 1] - 1]])
+    if session.has_gyro and (no_gyro := coverage_warning(session, block_times)) is not None:
+        warnings.append(no_gyro)
     if stated:
         warnings.append(RunWarning("init_still_stated", stated))
 
@@ -128,7 +142,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                            acc_fit.model.apply(det.means[b0:b1]),
                                            session.gyro_unit, settings.gyro,
                                            block_mean_cov(session.acc, blocks, acc_fit),
-                                           saturated=gyro_sat)
+                                           saturated=gyro_sat, no_data=turns_without_gyro(
+                                               session.t_gyro, block_times[b0:b1]))
         n_orient = distinct_orientations(det.means[b0:b1] - acc_fit.model.b)
         acc_cv = leave_one_block_out(acc_fit, det.means[b0:b1])
         seg = Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),

@@ -159,7 +159,9 @@ def _gyro(fit: GyroFit, raw: str) -> FitSection:
     rows += [ParamRow(n, "bias", raw, float(v), None if e is None else float(e))
              for n, v, e in zip(("b_x", "b_y", "b_z"), fit.model.b, bias_std)]
     rep = fit.report
+    out = int(fit.excluded.sum())  # saturated or without gyroscope data (stages/sanity.py)
     details = (f"bias: {fit.bias_source}; lambda {fmt(fit.lam, '.3g')}; {len(fit.u_meas)} "
-               f"rotations; cost {fmt(rep.cost_start, '.3g')} -> {fmt(rep.cost, '.3g')}")
+               f"rotations{f' ({out} left out of the fit)' if out else ''}; cost "
+               f"{fmt(rep.cost_start, '.3g')} -> {fmt(rep.cost, '.3g')}")
     return FitSection("gyroscope", "w = T_g K_g (w_raw - b_g), w in rad/s", raw, tuple(rows),
                       details)

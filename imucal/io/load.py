@@ -40,6 +40,7 @@ from imucal.io.units import (
     resolve_gyro_unit,
 )
 from imucal.session import Session
+from imucal.stages.sanity import one_rate_pairing
 
 __all__ = ["load_session"]
 
@@ -102,6 +103,10 @@ def load_session(
     gyro = t_gyro = None
     if "gyro" in parts:
         gyro, t_gyro = settle_time(parts["gyro"], opts)
+    if gyro_path is not None and t_gyro is not None and opts.rate is not None:
+        # Two files timed by one rate: their lengths must agree (stages/sanity.py).
+        note = one_rate_pairing(t_acc, t_gyro, opts.rate, *(display_name(p) for p in paths))
+        opts.notes.extend([note] if note else [])
 
     acc = _scale_named_unit(acc, parts["acc"], opts.notes)
     if gyro is not None:

@@ -77,7 +77,8 @@ class GyroFit:
     t_transition: np.ndarray  # (K, 2) [t_start, t_end] of each transition
     rotation_angle: np.ndarray  # (K,) integrated rotation angle, rad
     static_bias: np.ndarray  # (3,) the bias measured on the still blocks, raw units
-    excluded: np.ndarray  # (K,) bool: transitions left out of the fit (saturated samples)
+    excluded: np.ndarray  # (K,) bool: transitions left out of the fit (saturated samples, or
+    # no gyroscope data: see imucal.stages.sanity)
     cv: GyroCV  # the same prediction out of sample, and the bias choice
     warnings: list[RunWarning] = field(default_factory=list)
 
@@ -194,7 +195,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                         gravity: np.ndarray, gyro_unit: str,
                         settings: GyroSettings = Settings().gyro,
                         gravity_cov: np.ndarray | FactoredCov | None = None,
-                        saturated: np.ndarray | None = None) -> GyroFit:
+                        saturated: np.ndarray | None = None,
+                        no_data: np.ndarray | None = None) -> GyroFit:
     """Fit M4 so that integrating the calibrated rate (M5) turns each block's gravity
     direction into the next one's.
 
@@ -203,6 +205,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     :func:`direction_error_cov`). ``saturated`` (N,) marks gyroscope samples flat at the
     sensor's limit: a rotation through them is under-measured by any calibration, so its
     transition is left out of the fit (and of the quality figure), but still predicted and shown.
+    ``no_data`` (K,) marks transitions the gyroscope does not cover (before its first sample,
+    after its last, across a time gap): left out the same way (the caller says which).
     Whether the bias is fitted too is ``settings.optimise_bias``, or with ``None`` the variant
     that predicts held-out turns better (:func:`fit_bias_choice`).
     """
@@ -225,6 +229,12 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                                    f"{len(excluded)} rotations between still poses pass through "
                                    "saturated gyroscope samples and are left out of the "
                                    "gyroscope fit"))
+    if no_data is not None and np.any(no_data):
+        excluded = excluded | no_data
+        if excluded.all():
+            raise ImucalError(f"none of the {len(excluded)} rotations between still poses has "
+                              "usable gyroscope data (no samples, a time gap or saturation)",
+                              source="gyroscope", field="rotations")
     keep = ~excluded
     tr = tr_all if keep.all() else Transitions(w_raw, t, block_times, keep)
     fit_prev, fit_meas = u[:-1][keep], u[1:][keep]
@@ -262,7 +272,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     after = rotate_inverse(q_model, u_prev)  # = tr_all.predict(model, u_prev)
     angle = 2 * np.degrees(np.arccos(np.clip(np.abs(q_model[:, 0]), 0, 1)))
     in_sample = angle_between(u_meas, after)[keep]
-    warnings += _fit_warnings(tr_all, model, report, angle, in_sample, cv)
+    # Judged on the turns fitted: one without data turns by nothing, one across a gap in a step.
+    warnings += _fit_warnings(tr, model, report, angle[keep], in_sample, cv)
     return GyroFit(model=model, std=std, bias_source=bias_source, nominal_scale=s0,
                    nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
                    u_meas=u_meas, u_pred_before=before, u_pred_after=after,

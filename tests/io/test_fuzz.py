@@ -13,6 +13,7 @@ import scipy.io
 
 import imucal
 from imucal.io.load import load_session
+from imucal.stages.sanity import gap_warnings, unwrap_session
 
 
 def _corpus(shared, tmp_path) -> dict[str, bytes]:
@@ -39,12 +40,27 @@ def _corpus(shared, tmp_path) -> dict[str, bytes]:
     buf = io.BytesIO()
     df.write_parquet(buf)
     files["s.parquet"] = buf.getvalue()
+    # Issue 11's silent cases: int16 counts that wrap around, a 5-minute gap in the time.
+    counts = np.rint(m[:, 1:] * 16000 + [0, 0, 0, 0, 0, 32000]).astype(np.int64)
+    counts[50:200, 5] += np.rint(2500 * np.sin(np.linspace(0, np.pi, 150))).astype(np.int64)
+    wrapped = (counts + 32768) % 65536 - 32768  # past 32767 for a while, stored as int16
+    files["wrap.csv"] = _csv(np.column_stack([m[:, 0], wrapped]), "%d")
+    gap = m.copy()
+    gap[150:, 0] += 300.0
+    files["gap.csv"] = _csv(gap, "%.6f")
     if shared is not None:
         for rel in ("mikoff_mpu9150/imu0.log", "imu_tk_xsens/xsens_acc.mat",
                     "imucal_ferraris/example_ferraris_session.csv"):
             lines = (shared / rel).read_bytes().splitlines(keepends=True)
             files[rel.replace("/", "_")] = b"".join(lines[:300])
     return files
+
+
+def _csv(m: np.ndarray, fmt: str) -> bytes:
+    buf = io.StringIO()
+    np.savetxt(buf, m, delimiter=",", header="t,ax,ay,az,gx,gy,gz", comments="",
+               fmt=["%.6f"] + [fmt] * 6)
+    return buf.getvalue().encode()
 
 
 def _mutate(data: bytes, rng: np.random.Generator) -> bytes:
@@ -77,7 +93,10 @@ def test_mutated_files_raise_only_imucal_errors(tmp_path):
         name = list(files)[int(rng.integers(0, len(files)))]
         target.write_bytes(_mutate(files[name], rng))
         try:
-            load_session(target, rate=100.0)
+            session = load_session(target, rate=100.0)
+            # The input sanity checks (stages/sanity.py) take whatever loads.
+            unwrap_session(session)
+            gap_warnings(session)
             n_ok += 1
         except imucal.ImucalError as e:
             assert "\n" not in str(e) and "fuzz.bin" in str(e), str(e)
