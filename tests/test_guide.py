@@ -151,7 +151,7 @@ def test_short_holds_are_flagged_against_the_minimum():
     assert any("hold each pose still for 1.5 s" in t for t in result.guide.record_next)
 
 
-def test_fast_and_small_turns_are_flagged_against_the_limits():
+def test_fast_and_small_turns_are_flagged_against_the_limits(tmp_path):
     rng = np.random.default_rng(5)
     ups = _random_ups(14, rng)
     # Turn 8 tilts by 8 degrees only (a pure yaw would not be seen by the accelerometer: the
@@ -178,6 +178,12 @@ def test_fast_and_small_turns_are_flagged_against_the_limits():
     assert t.tilt_deg[8] == pytest.approx(8.0, abs=0.3)
     todo = " ".join(result.guide.record_next)
     assert "turn more slowly" in todo and "tilt 15 deg" in todo
+    # The recording shows the flagged turns again, at their times.
+    path = tmp_path / "fast.rrd"
+    save_recording(result, path)
+    tf, rf = rb.scalars(path, P.GUIDE_TURN_FAST)
+    np.testing.assert_allclose(tf, t.times[fast].mean(axis=1), atol=1e-6)
+    np.testing.assert_allclose(rf, t.peak_rate[fast])
 
 
 def test_rad_s_gyroscope_limit_comes_from_the_integration(whole_sphere):

@@ -42,9 +42,8 @@ def log_guide(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> 
     mid = result.block_middles
     rows[P.GUIDE_HOLD] = send_scalars(rec, P.GUIDE_HOLD, mid, h.duration_s)
     style_points(rec, P.GUIDE_HOLD, ["still block duration (s)"], [MEASURED])
-    rows[P.GUIDE_HOLD_NEAR_MIN] = send_scalars(rec, P.GUIDE_HOLD_NEAR_MIN, mid[h.near_min],
-                                               h.duration_s[h.near_min])
-    style_points(rec, P.GUIDE_HOLD_NEAR_MIN, ["near the minimum"], [MISSING], size=6.0)
+    _flagged(rec, P.GUIDE_HOLD_NEAR_MIN, mid, h.duration_s, h.near_min, "near the minimum",
+             rows)
     _line(rec, P.GUIDE_HOLD_MIN, span, h.min_s, f"minimum {h.min_s:.2g} s ({h.min_source})",
           BEFORE, rows)
     _line(rec, P.GUIDE_HOLD_WARN, span, h.min_s * NEAR_MIN_FACTOR,
@@ -55,9 +54,7 @@ def log_guide(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> 
         tm = tg.times.mean(axis=1)
         rows[P.GUIDE_TURN_RATE] = send_scalars(rec, P.GUIDE_TURN_RATE, tm, tg.peak_rate)
         style_points(rec, P.GUIDE_TURN_RATE, ["turn peak |w| (rad/s)"], [MEASURED])
-        rows[P.GUIDE_TURN_FAST] = send_scalars(rec, P.GUIDE_TURN_FAST, tm[tg.fast],
-                                               tg.peak_rate[tg.fast])
-        style_points(rec, P.GUIDE_TURN_FAST, ["over the limit"], [MISSING], size=6.0)
+        _flagged(rec, P.GUIDE_TURN_FAST, tm, tg.peak_rate, tg.fast, "over the limit", rows)
         _line(rec, P.GUIDE_TURN_LIMIT, span, tg.rate_limit,
               f"limit {tg.rate_limit:.3g} rad/s", BEFORE, rows)
         rows[P.GUIDE_TURN_TILT] = send_scalars(rec, P.GUIDE_TURN_TILT, tm, tg.tilt_deg)
@@ -68,6 +65,14 @@ def log_guide(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> 
         _line(rec, P.GUIDE_TURN_MIN_TILT, span, tg.min_tilt_deg,
               f"minimum tilt {tg.min_tilt_deg:g} deg", BEFORE, rows)
     _log_info(g, rec)
+
+
+def _flagged(rec: rr.RecordingStream, path: str, t: np.ndarray, v: np.ndarray,
+             flag: np.ndarray, name: str, rows: dict[str, int]) -> None:
+    """The flagged rows again, larger and red, over the series (nothing when none is)."""
+    if flag.any():
+        rows[path] = send_scalars(rec, path, t[flag], v[flag])
+        style_points(rec, path, [name], [MISSING], size=6.0)
 
 
 def _line(rec: rr.RecordingStream, path: str, span: list[float], value: float, name: str,
@@ -94,7 +99,7 @@ def _log_sphere(g: Guide, rec: rr.RecordingStream) -> None:
                                        radii=0.045), static=True)
     rec.log(P.GUIDE_MISSING, rr.Points3D(p.missing, colors=rgba([MISSING] * len(p.missing)),
                                          radii=0.018), static=True)
-    labels = [f"next: {axis_words(v)} up" for v in p.suggested]
+    labels = [axis_words(v) for v in p.suggested]  # short: six of them may crowd the sphere
     rec.log(P.GUIDE_NEXT, rr.Arrows3D(vectors=p.suggested * 1.15,
                                       colors=rgba([NEXT] * len(p.suggested)), labels=labels,
                                       radii=0.02), static=True)
@@ -140,7 +145,7 @@ def guide_views(result: Result | None = None) -> list[rrb.View]:
             origin=P.GUIDE, contents=[f"{P.GUIDE}/**"],
             line_grid=rrb.LineGrid3D(visible=False),
             eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital,
-                                           position=[1.5, -1.8, 1.2], look_target=[0, 0, 0],
+                                           position=[1.65, -2.0, 1.35], look_target=[0, 0, 0],
                                            eye_up=[0, 0, 1])),
         _ts(f"Still block duration (s); red: minimum{hold_min}",
             P.GUIDE_HOLD, P.GUIDE_HOLD_NEAR_MIN, P.GUIDE_HOLD_MIN, P.GUIDE_HOLD_WARN)]

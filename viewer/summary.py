@@ -79,6 +79,9 @@ def report_markdown(rep: Report) -> str:
                      f"{fmt(row.figure.after, '.4g')} | {held} |")
     lines += [f"- {n}" for n in rep.quality_notes]
     lines.append("")
+    if rep.guide:
+        lines += ["## Guide to the recording", ""]
+        lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.guide] + [""]
     for seg in rep.segments:
         lines += [f"## Segment {seg.index}: {seg.span}", ""]
         for fit in seg.fits:
@@ -88,9 +91,6 @@ def report_markdown(rep: Report) -> str:
                 label = f"{p.name} ({p.unit})" if p.unit else p.name
                 lines.append(f"| {label} | {fmt(p.value)} | {fmt(p.std, '.2g')} |")
             lines += ["", fit.details, ""]
-    if rep.guide:
-        lines += ["## Guide to the recording", ""]
-        lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.guide] + [""]
     lines += ["## Warnings", ""]
     lines += [f"- {w.text}" for w in rep.warnings] or ["none"]
     lines.append("")

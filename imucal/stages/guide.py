@@ -218,7 +218,10 @@ def _verdict(poses: PoseGuide, holds: HoldGuide, turns: TurnGuide
     if len(poses.suggested):
         where = ", ".join(f"({axis_words(v)})" for v in poses.suggested)
         n = len(poses.suggested)
-        todo.append(f"hold {n} more pose{'s' if n > 1 else ''}, with {where} pointing up")
+        reach = (poses.missing @ poses.suggested.T).max(axis=1)
+        more = (", then look again: some directions stay uncovered"
+                if np.any(reach < np.cos(np.radians(COVERAGE_ANGLE_DEG))) else "")
+        todo.append(f"hold {n} more pose{'s' if n > 1 else ''}, with {where} pointing up{more}")
     elif poses.orientations < ORIENTATIONS_NEEDED:
         todo.append(f"hold {ORIENTATIONS_NEEDED - poses.orientations} more poses in new "
                     "orientations, each tilted 15 deg or more from the others")
