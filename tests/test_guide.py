@@ -224,3 +224,16 @@ def test_summary_and_recording_hold_the_guide(whole_sphere, tmp_path):
     assert list(np.atleast_1d(info["record_next"])) == list(g.record_next)
     views = [name for _, name in rb.blueprint_views(path)]
     assert any(name.startswith("Poses (axis up)") for name in views)
+
+
+def test_calibration_file_holds_the_verdict(whole_sphere, tmp_path):
+    import json
+
+    from imucal.io.calibration_file import result_to_dict
+
+    result, _, _ = whole_sphere
+    d = json.loads(json.dumps(result_to_dict(result)))["guide"]
+    g = result.guide
+    assert d["record_next"] == list(g.record_next) and d["strong"] == list(g.strong)
+    assert d["turn_rate_limit_rad_s"] == pytest.approx(g.turns.rate_limit)
+    assert d["gyro_full_scale_rad_s"] is None and d["orientations"] == g.poses.orientations

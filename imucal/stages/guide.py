@@ -261,3 +261,18 @@ def _verdict(poses: PoseGuide, holds: HoldGuide, turns: TurnGuide
         todo.append("nothing: the session covers the sphere, holds long enough and turns "
                     "within the limits")
     return tuple(strong), tuple(weak), tuple(todo)
+
+
+def guide_summary(guide: Guide) -> dict:
+    """The guide's figures and verdict, small enough for the calibration file (no arrays)."""
+    def f(x: float | None) -> float | None:
+        return None if x is None or not np.isfinite(x) else float(x)
+
+    h, t = guide.holds, guide.turns
+    return {"orientations": guide.poses.orientations, "coverage": f(guide.poses.coverage),
+            "min_block_s": f(h.min_s), "min_block_source": h.min_source,
+            "blocks_near_minimum": int(h.near_min.sum()), "short_holds": h.short_holds,
+            "turn_rate_limit_rad_s": f(t.rate_limit), "turn_rate_limit_source": t.limit_source,
+            "gyro_full_scale_rad_s": f(t.full_scale), "turns_over_limit": int(t.fast.sum()),
+            "turns_under_min_tilt": int(t.small.sum()), "strong": list(guide.strong),
+            "weak": list(guide.weak), "record_next": list(guide.record_next)}
