@@ -148,7 +148,9 @@ def test_short_holds_are_flagged_against_the_minimum():
     k = _pose_of_blocks(result, motion)
     assert np.array_equal(k[h.near_min], short)
     assert any("within 1.5x of the minimum" in w for w in result.guide.weak)
-    assert any("hold each pose still for 1.5 s" in t for t in result.guide.record_next)
+    # A hold of 1.5 s makes a block of the 1 s minimum (the 0.51 s window); 2 s clears 1.5 x.
+    assert h.min_hold_s == pytest.approx(1.5) and h.recommended_s == pytest.approx(2.0)
+    assert any("hold each pose still for 2 s" in t for t in result.guide.record_next)
 
 
 def test_fast_and_small_turns_are_flagged_against_the_limits(tmp_path):

@@ -72,6 +72,7 @@ class HoldGuide:
     near_min: np.ndarray  # (B,) bool: shorter than NEAR_MIN_FACTOR * min_s
     short_holds: int  # still stretches the detector saw but too short for a block
     min_hold_s: float | None  # the shortest still stretch that makes a block, s
+    recommended_s: float  # a hold that makes a block clear of NEAR_MIN_FACTOR x the minimum
 
 
 @dataclass(frozen=True)
@@ -144,10 +145,13 @@ def _holds(session: Session, det: Detection) -> HoldGuide:
     tun = det.tuning
     source = ("chosen from the data" if tun is not None and "min_len" in tun.tuned
               else "given")
+    min_hold = tun.min_hold_s if tun is not None else None
     return HoldGuide(duration_s=duration, min_s=min_s, min_len=int(det.min_len),
                      min_source=source, near_min=duration < NEAR_MIN_FACTOR * min_s,
                      short_holds=tun.short_holds if tun is not None else 0,
-                     min_hold_s=tun.min_hold_s if tun is not None else None)
+                     min_hold_s=min_hold,
+                     # a hold of min_hold_s makes a block of min_s (the window's edges)
+                     recommended_s=(min_hold or min_s) + (NEAR_MIN_FACTOR - 1) * min_s)
 
 
 def _turns(session: Session, block_times: np.ndarray, u: np.ndarray,
@@ -208,13 +212,24 @@ def gyro_full_scale(session: Session, fit: GyroFit) -> tuple[float | None, str]:
 
 def _verdict(poses: PoseGuide, holds: HoldGuide, turns: TurnGuide
              ) -> tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]]:
-    strong, weak, todo = [], [], []
+    """What is strong, what is weak, what to record next: one sentence per finding."""
+    strong: list[str] = []
+    weak: list[str] = []
+    todo: list[str] = []
+    for judge, what in ((_judge_poses, poses), (_judge_holds, holds), (_judge_turns, turns)):
+        judge(what, strong, weak, todo)
+    if not todo:
+        todo.append("nothing: the session covers the sphere, holds long enough and turns "
+                    "within the limits")
+    return tuple(strong), tuple(weak), tuple(todo)
+
+
+def _judge_poses(poses: PoseGuide, strong: list[str], weak: list[str], todo: list[str]
+                 ) -> None:
     cover = (f"{poses.orientations} distinct orientations ({ORIENTATIONS_NEEDED} needed), "
              f"{poses.coverage:.0%} of the sphere within {COVERAGE_ANGLE_DEG:g} deg of a pose")
-    if len(poses.missing) == 0 and poses.orientations >= ORIENTATIONS_NEEDED:
-        strong.append(cover)
-    else:
-        weak.append(cover)
+    good = len(poses.missing) == 0 and poses.orientations >= ORIENTATIONS_NEEDED
+    (strong if good else weak).append(cover)
     if len(poses.suggested):
         where = ", ".join(f"({axis_words(v)})" for v in poses.suggested)
         n = len(poses.suggested)
@@ -224,43 +239,45 @@ def _verdict(poses: PoseGuide, holds: HoldGuide, turns: TurnGuide
         todo.append(f"hold {n} more pose{'s' if n > 1 else ''}, with {where} pointing up{more}")
     elif poses.orientations < ORIENTATIONS_NEEDED:
         todo.append(f"hold {ORIENTATIONS_NEEDED - poses.orientations} more poses in new "
-                    "orientations, each tilted 15 deg or more from the others")
+                    f"orientations, each tilted {MIN_TILT_DEG:g} deg or more from the others")
 
-    hold = NEAR_MIN_FACTOR * holds.min_s
+
+def _judge_holds(holds: HoldGuide, strong: list[str], weak: list[str], todo: list[str]
+                 ) -> None:
     med = float(np.median(holds.duration_s)) if len(holds.duration_s) else float("nan")
     n_near = int(holds.near_min.sum())
     blocks = (f"{len(holds.duration_s)} still blocks, median {med:.2g} s against a minimum of "
               f"{holds.min_s:.2g} s ({holds.min_source})")
-    if n_near or holds.short_holds:
-        parts = [f"{n_near} within {NEAR_MIN_FACTOR:g}x of the minimum"] if n_near else []
-        if holds.short_holds:
-            parts.append(f"{holds.short_holds} holds too short to count")
-        weak.append(f"{blocks}: {', '.join(parts)}")
-        todo.append(f"hold each pose still for {hold:.2g} s or more")
-    else:
+    if not (n_near or holds.short_holds):
         strong.append(blocks)
+        return
+    parts = [f"{n_near} within {NEAR_MIN_FACTOR:g}x of the minimum"] if n_near else []
+    if holds.short_holds:
+        parts.append(f"{holds.short_holds} holds too short to count")
+    weak.append(f"{blocks}: {', '.join(parts)}")
+    todo.append(f"hold each pose still for {holds.recommended_s:.2g} s or more")
 
+
+def _judge_turns(turns: TurnGuide, strong: list[str], weak: list[str], todo: list[str]
+                 ) -> None:
     K = len(turns.peak_rate)
-    if K:
-        turn = (f"{K} turns, peak rate up to {turns.peak_rate.max():.3g} rad/s against a limit "
-                f"of {turns.rate_limit:.3g} rad/s ({turns.limit_source})")
-        n_fast, n_small, n_sat = (int(turns.fast.sum()), int(turns.small.sum()),
-                                  int(turns.saturated.sum()))
-        if n_fast or n_sat:
-            extra = f", {n_sat} through clipped samples" if n_sat else ""
-            weak.append(f"{turn}: {n_fast} faster than the limit{extra}")
-            todo.append(f"turn more slowly: keep below {turns.rate_limit:.3g} rad/s "
-                        f"({np.degrees(turns.rate_limit):.0f} deg/s)")
-        else:
-            strong.append(turn)
-        if n_small:
-            weak.append(f"{n_small} of {K} turns move gravity less than {MIN_TILT_DEG:g} deg "
-                        "(they land in the same pose and tell the gyroscope little)")
-            todo.append(f"tilt {MIN_TILT_DEG:g} deg or more between consecutive poses")
-    if not todo:
-        todo.append("nothing: the session covers the sphere, holds long enough and turns "
-                    "within the limits")
-    return tuple(strong), tuple(weak), tuple(todo)
+    if K == 0:
+        return
+    turn = (f"{K} turns, peak rate up to {turns.peak_rate.max():.3g} rad/s against a limit "
+            f"of {turns.rate_limit:.3g} rad/s ({turns.limit_source})")
+    n_fast, n_small, n_sat = (int(turns.fast.sum()), int(turns.small.sum()),
+                              int(turns.saturated.sum()))
+    if n_fast or n_sat:
+        extra = f", {n_sat} through clipped samples" if n_sat else ""
+        weak.append(f"{turn}: {n_fast} faster than the limit{extra}")
+        todo.append(f"turn more slowly: keep below {turns.rate_limit:.3g} rad/s "
+                    f"({np.degrees(turns.rate_limit):.0f} deg/s)")
+    else:
+        strong.append(turn)
+    if n_small:
+        weak.append(f"{n_small} of {K} turns move gravity less than {MIN_TILT_DEG:g} deg "
+                    "(they land in the same pose and tell the gyroscope little)")
+        todo.append(f"tilt {MIN_TILT_DEG:g} deg or more between consecutive poses")
 
 
 def guide_summary(guide: Guide) -> dict:
