@@ -44,6 +44,9 @@ FULL_SCALE_FRACTION = 0.8
 # sample keeps it near 0.01 deg, far below a good fit's 0.05-0.1 deg.
 MAX_STEP_DEG = 10.0
 ORIENTATIONS_NEEDED = 9  # M2 has 9 parameters (method.md §3)
+# Coverage called strong: a stray test direction or two at the meeting of three caps leaves no
+# parameter undetermined (the suggestion still names the pose that would reach them).
+GOOD_COVERAGE = 0.95
 MAX_SUGGESTED = 6  # at most this many poses suggested (each covers a 45-degree cap)
 # Integer codes of an ADC: a gyroscope in raw counts whose samples all lie inside one of these
 # cannot read beyond it, so its full scale is at most the distance from its zero to the edge.
@@ -227,8 +230,9 @@ def _verdict(poses: PoseGuide, holds: HoldGuide, turns: TurnGuide
 def _judge_poses(poses: PoseGuide, strong: list[str], weak: list[str], todo: list[str]
                  ) -> None:
     cover = (f"{poses.orientations} distinct orientations ({ORIENTATIONS_NEEDED} needed), "
-             f"{poses.coverage:.0%} of the sphere within {COVERAGE_ANGLE_DEG:g} deg of a pose")
-    good = len(poses.missing) == 0 and poses.orientations >= ORIENTATIONS_NEEDED
+             f"{int(100 * poses.coverage)} % of the sphere within {COVERAGE_ANGLE_DEG:g} deg "
+             "of a pose")  # rounded down: 100 % only when nothing is missing
+    good = poses.coverage >= GOOD_COVERAGE and poses.orientations >= ORIENTATIONS_NEEDED
     (strong if good else weak).append(cover)
     if len(poses.suggested):
         where = ", ".join(f"({axis_words(v)})" for v in poses.suggested)
