@@ -20,7 +20,6 @@ from imucal.io.atomic import write_text_atomic
 from imucal.io.noise_json import noise_to_dict
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
 from imucal.stages.apply import Calibration
-from imucal.stages.guide import guide_summary
 from imucal.stages.noise import still_noise
 
 if TYPE_CHECKING:
@@ -141,7 +140,7 @@ def result_to_dict(result: Result) -> dict:
         # instability and random walk only where the blocks are long enough to show them).
         "noise": noise_to_dict(still_noise(result.calibrated, result.block_times)),
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
-        "guide": None if result.guide is None else guide_summary(result.guide),
+        "guide": None if result.guide is None else result.guide.to_dict(),
     }
 
 

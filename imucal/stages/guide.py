@@ -105,6 +105,10 @@ class Guide:
     weak: tuple[str, ...]  # what it lacks
     record_next: tuple[str, ...]  # what to record next, as instructions
 
+    def to_dict(self) -> dict:
+        """The figures and the verdict for the calibration file (:func:`guide_summary`)."""
+        return guide_summary(self)
+
 
 def recording_guide(session: Session, det: Detection, block_times: np.ndarray,
                     gravity: np.ndarray, gyro_fits: list[tuple[int, GyroFit]],
