@@ -24,6 +24,7 @@ from imucal.stages.detect import Detection
 from imucal.stages.detect_score import count_orientations
 from imucal.stages.detect_tuning import tune_detector
 from imucal.stages.group import block_mean_variance, group_blocks
+from imucal.stages.guide import recording_guide
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.quality import quality_figures
 from imucal.stages.sanity import (
@@ -176,9 +177,13 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                               [s.gyro for s in segments if s.gyro is not None],
                               np.concatenate([s.acc_cv.block_error_mg for s in segments]),
                               g_in, g_out)
+    guide = recording_guide(session, det, block_times, np.concatenate(
+        [s.acc.model.apply(det.means[s.blocks[0]:s.blocks[1]]) for s in segments]),
+        [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None], calibrated.gyro_norm)
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
-                  calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings)
+                  calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings,
+                  guide=guide)
 
 
 def _drop_saturated(acc: np.ndarray, det: Detection) -> tuple[Detection, int]:

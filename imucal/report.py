@@ -77,6 +77,7 @@ class Report:
     quality_notes: tuple[str, ...]  # why a "before" is missing, ...
     segments: tuple[SegmentSection, ...]
     warnings: tuple[RunWarning, ...]
+    guide: tuple[Line, ...] = ()  # "strong", "weak", "record next": the recording judged
 
 
 def fmt(x: float | None, spec: str = ".6g") -> str:
@@ -102,7 +103,7 @@ def report(result: Result) -> Report:
     return Report(title=Path(result.session.source).name, overview=_overview(result),
                   quality=tuple(quality), quality_notes=tuple(q.notes),
                   segments=tuple(_segment(result, seg) for seg in result.segments),
-                  warnings=tuple(result.warnings))
+                  warnings=tuple(result.warnings), guide=_guide(result))
 
 
 def _overview(result: Result) -> tuple[Line, ...]:
@@ -122,6 +123,16 @@ def _overview(result: Result) -> tuple[Line, ...]:
         Line("output", f"calibrated accelerometer in {cal.acc_unit} (|g| = {cal.g:g})"
                        + (", gyroscope in rad/s" if s.has_gyro else "")),
     )
+
+
+def _guide(result: Result) -> tuple[Line, ...]:
+    """The recording judged (:mod:`imucal.stages.guide`): what is strong, what is weak, and
+    what to record next."""
+    g = result.guide
+    if g is None:
+        return ()
+    return tuple([Line("strong", t) for t in g.strong] + [Line("weak", t) for t in g.weak]
+                 + [Line("record next", t) for t in g.record_next])
 
 
 def _rate(hz: float | None) -> str:

@@ -16,6 +16,7 @@ from imucal.stages.accel_cv import AccCrossValidation
 from imucal.stages.apply import CalibratedSignals, Calibration
 from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
+from imucal.stages.guide import Guide
 from imucal.stages.gyro import GyroFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
@@ -60,6 +61,7 @@ class Result:
     quality: Quality
     g_in: float
     warnings: list[RunWarning] = field(default_factory=list)
+    guide: Guide | None = None  # poses, holds and turns against the limits; what to record
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

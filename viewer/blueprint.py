@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 import rerun.blueprint as rrb
 
 from . import paths as P
+from .guide import guide_column
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -83,7 +84,7 @@ def blueprint(result: Result | None = None, active_tab: int | str = 0) -> rrb.Bl
         rrb.Vertical(*magnitudes, _lanes(), row_shares=[3] * len(magnitudes) + [1]),
         rrb.Vertical(rrb.TextDocumentView(name="Summary", origin=P.SUMMARY), _gravity3d(),
                      row_shares=[3, 2]),
-        column_shares=[3, 2], name="Overview")]
+        guide_column(result), column_shares=[3, 2, 2], name="Overview")]
 
     signals = [_ts("Accelerometer axes, raw", P.ACC_RAW),
                _ts("Accelerometer axes, calibrated", P.ACC_CALIBRATED)]

@@ -79,3 +79,23 @@ QUALITY = "calibration/quality"  # AnyValues: the quality figures, before/after
 def calibration(i: int, sensor: str) -> str:
     """AnyValues with a segment's parameters: ``sensor`` ``accelerometer`` or ``gyroscope``."""
     return f"calibration/segment_{i}/{sensor}"
+
+
+# Guide to the recording (Overview tab): Result.guide (imucal.stages.guide)
+GUIDE = "guide"  # the sphere's Spatial3DView origin
+GUIDE_SPHERE = "guide/sphere"  # static LineStrips3D: equator and meridians of the unit sphere
+GUIDE_AXES = "guide/axes"  # static Arrows3D body x, y, z
+GUIDE_POSES = "guide/poses"  # static Points3D: each still block's gravity direction (up axis)
+GUIDE_MISSING = "guide/missing"  # static Points3D: sphere directions no pose comes near
+GUIDE_NEXT = "guide/next"  # static Arrows3D: poses to record next, labelled "+x, -z"
+GUIDE_HOLD = "guide_holds/duration_s"  # Scalars per block at its middle: duration, s
+GUIDE_HOLD_NEAR_MIN = "guide_holds/near_minimum_s"  # the blocks near the minimum only
+GUIDE_HOLD_MIN = "guide_holds/minimum_s"  # the detector's minimum, 2 rows (a line)
+GUIDE_HOLD_WARN = "guide_holds/near_minimum_limit_s"  # NEAR_MIN_FACTOR x minimum, a line
+GUIDE_TURN_RATE = "guide_turns/peak_rate"  # Scalars per turn at its middle: rad/s
+GUIDE_TURN_FAST = "guide_turns/peak_rate_over_limit"  # the turns over the limit only
+GUIDE_TURN_LIMIT = "guide_turns/rate_limit"  # rad/s, a line
+GUIDE_TURN_TILT = "guide_turns/tilt_deg"  # gravity moved by each turn, deg
+GUIDE_TURN_ANGLE = "guide_turns/angle_deg"  # integrated rotation angle, deg (NaN: none)
+GUIDE_TURN_MIN_TILT = "guide_turns/min_tilt_deg"  # a line
+GUIDE_INFO = "guide/info"  # static AnyValues: limits, their sources, the verdict

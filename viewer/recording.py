@@ -136,6 +136,7 @@ from imucal.io.atomic import atomic_path
 from . import paths as P
 from .decimate import DECIMATE_ABOVE, ENVELOPE_ROWS, SCREEN_ROWS, STILL_ROWS
 from .gravity import log_gravity
+from .guide import log_guide
 from .lcurve import log_lcurves
 from .optimiser import log_iterations
 from .signals import log_block_errors, log_detector, log_signals
@@ -158,6 +159,7 @@ def log_result(result: Result, rec: rr.RecordingStream) -> dict[str, int]:
     log_detector(result, rec, rows)
     log_block_errors(result, rec, rows)
     log_gravity(result, rec, rows)
+    log_guide(result, rec, rows)
     log_lcurves(result, rec, rows)
     log_iterations(result, rec, rows)
     log_results(result, rec)

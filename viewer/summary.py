@@ -79,6 +79,9 @@ def report_markdown(rep: Report) -> str:
                      f"{fmt(row.figure.after, '.4g')} | {held} |")
     lines += [f"- {n}" for n in rep.quality_notes]
     lines.append("")
+    if rep.guide:
+        lines += ["## Guide to the recording", ""]
+        lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.guide] + [""]
     for seg in rep.segments:
         lines += [f"## Segment {seg.index}: {seg.span}", ""]
         for fit in seg.fits:

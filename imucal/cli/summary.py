@@ -29,6 +29,9 @@ def summary_lines(rep: Report) -> list[str]:
                          f"misalign({mis}) {_vec(fit.values('misalignment'), '.3g')}  "
                          f"bias {_vec(fit.values('bias'))} {fit.raw_unit}")
             lines.append(f"{'':8s}{fit.details}")
+    if rep.guide:
+        lines.append("guide to the recording:")
+        lines += [f"  {line.label:14s}{line.text}" for line in rep.guide]
     notes = [w.text for w in rep.warnings] + list(rep.quality_notes)
     if notes:
         lines.append("warnings:")

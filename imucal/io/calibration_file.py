@@ -139,6 +139,7 @@ def result_to_dict(result: Result) -> dict:
         # instability and random walk only where the blocks are long enough to show them).
         "noise": noise_to_dict(result.noise),
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
+        "guide": None if result.guide is None else result.guide.to_dict(),
     }
 
 

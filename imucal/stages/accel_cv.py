@@ -63,7 +63,7 @@ class AccCrossValidation:
             parts.append(f"the data barely determine {', '.join(self.undetermined)}")
         if len(self.uncovered):
             mean_dir = self.uncovered.mean(axis=0)
-            hint = (f" (around {_axis_words(mean_dir)})"
+            hint = (f" (around {axis_words(mean_dir)})"
                     if np.linalg.norm(mean_dir) > 0.5 else "")
             parts.append(f"{100 * (1 - self.coverage):.0f} % of directions have no pose within "
                          f"{COVERAGE_ANGLE_DEG:g} degrees{hint}")
@@ -91,14 +91,14 @@ def leave_one_block_out(fit: AccFit, means_raw: np.ndarray) -> AccCrossValidatio
     held_out = np.array([_norm_error_mg(to_raw_model(th, fit.nominal, fit.g_out), m, fit.g_out)
                          for th, m in zip(thetas, means_raw)])
     in_sample = _norm_error_mg(fit.model, means_raw, fit.g_out)
-    uncovered, coverage = _coverage(fit.model.apply(means_raw))
+    uncovered, covered = coverage(fit.model.apply(means_raw))
     JtJ = J.T @ J
     p_eff = float(np.trace(np.linalg.solve(JtJ + report.lam * np.eye(len(JtJ)), JtJ)))
     n = len(r)
     return AccCrossValidation(block_error_mg=held_out.reshape(B),
                               in_sample_error_mg=np.atleast_1d(in_sample),
                               undetermined=tuple(undetermined(J, ACC_PARAM_NAMES)),
-                              uncovered=uncovered, coverage=coverage,
+                              uncovered=uncovered, coverage=covered,
                               expected_ratio=n / max(n - p_eff, 1e-9))
 
 
@@ -107,7 +107,7 @@ def _norm_error_mg(model, raw: np.ndarray, g: float) -> np.ndarray:
     return (np.linalg.norm(a, axis=1) / g - 1.0) * 1e3
 
 
-def _coverage(gravity: np.ndarray) -> tuple[np.ndarray, float]:
+def coverage(gravity: np.ndarray) -> tuple[np.ndarray, float]:
     """Test directions (a Fibonacci sphere) farther than COVERAGE_ANGLE_DEG from every pose."""
     n = COVERAGE_DIRECTIONS
     i = np.arange(n) + 0.5
@@ -120,7 +120,7 @@ def _coverage(gravity: np.ndarray) -> tuple[np.ndarray, float]:
     return dirs[~near], float(near.mean())
 
 
-def _axis_words(v: np.ndarray) -> str:
+def axis_words(v: np.ndarray) -> str:
     """'+x, -z' for the axes a direction mostly points along."""
     v = v / np.linalg.norm(v)
     words = [f"{'+' if c > 0 else '-'}{name}" for c, name in zip(v, "xyz") if abs(c) > 0.4]
