@@ -147,7 +147,7 @@ def _patch_pipeline(clock: StageClock) -> list[str]:
     import imucal.pipeline as pl
     import imucal.stages.apply
 
-    stages = {"detect_static": "detect", "calibrate_accelerometer": "accel",
+    stages = {"tune_detector": "detect", "calibrate_accelerometer": "accel",
               "group_blocks": "group", "block_mean_cov": "gyro", "calibrate_gyroscope": "gyro",
               "quality_figures": "quality", "distinct_orientations": "quality"}
     missing = []
@@ -401,7 +401,7 @@ def gyro_problem(minutes: float, acc_rate: float = 100.0, gyro_rate: float = 100
 
     import imucal
     from imucal.models import GYRO_THETA0, SensorModel, gyro_T
-    from imucal.stages.gyro import Transitions
+    from imucal.stages.gyro_transitions import Transitions
     from imucal.synth import make_session
 
     session, _ = make_session(poses=max(int(round(minutes * 12)), 2), seed=1, still=3.0,

@@ -53,24 +53,20 @@ class SensorModel:
         """Parameter-wise mean, for samples between two segments (method.md §2)."""
         return SensorModel(T=(a.T + b.T) / 2, K=(a.K + b.K) / 2, b=(a.b + b.b) / 2)
 
-    @staticmethod
-    def identity() -> SensorModel:
-        return SensorModel(T=np.eye(3), K=np.ones(3), b=np.zeros(3))
-
 
 def acc_model(theta: np.ndarray) -> SensorModel:
+    """M2 from the parameter vector ``(a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z)``."""
     return SensorModel(T=acc_T(theta), K=np.array(theta[3:6], float), b=np.array(theta[6:9], float))
 
 
 def acc_theta(model: SensorModel) -> np.ndarray:
+    """The inverse of :func:`acc_model`."""
     T = model.T
     return np.array([-T[0, 1], T[0, 2], -T[1, 2], *model.K, *model.b])
 
 
-def gyro_model(theta: np.ndarray, bias: np.ndarray) -> SensorModel:
-    return SensorModel(T=gyro_T(theta), K=np.array(theta[6:9], float), b=np.asarray(bias, float))
-
-
 def gyro_theta(model: SensorModel) -> np.ndarray:
+    """M4's 6 misalignments and 3 scales of ``model`` (the fit's own mapping from parameters
+    to a raw-unit model is :func:`imucal.stages.gyro_transitions.gyro_model_of`)."""
     T = model.T
     return np.array([T[0, 1], T[0, 2], T[1, 0], T[1, 2], T[2, 0], T[2, 1], *model.K])

@@ -17,9 +17,12 @@ from imucal.stages.accel import (
     make_nominal,
     select_points,
 )
+from imucal.stages.accel_cv import leave_one_block_out
 from imucal.stages.apply import Calibration, SegmentModels
-from imucal.stages.detect import Detection, detect_static
-from imucal.stages.group import group_blocks
+from imucal.stages.detect import Detection
+from imucal.stages.detect_score import count_orientations
+from imucal.stages.detect_tuning import tune_detector
+from imucal.stages.group import block_mean_variance, group_blocks
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.quality import quality_figures
 from imucal.stages.saturation import blocks_with, saturated_mask
@@ -50,15 +53,18 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     warnings = [RunWarning("input", note) for note in session.notes]
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 
-    det = detect_static(session.acc, session.t_acc, settings.detect, source=session.source)
-    if det.note:  # the initial still interval was moved (method.md §1)
-        warnings.append(RunWarning("init_interval_moved", det.note))
+    det = tune_detector(session.acc, session.t_acc, settings.detect, acc_unit=session.acc_unit,
+                        g_in=g_in, source=session.source)
+    if det.note:  # the initial still interval was moved, or the reference level found (§1)
+        warnings.append(RunWarning("detector_reference", det.note))
+    if det.outlier_note:  # isolated absurd samples, left out of every still block (§1)
+        warnings.append(RunWarning("acc_outliers", det.outlier_note))
     det, excluded = _drop_saturated(session.acc, det)
     if excluded:
         warnings.append(RunWarning("acc_saturated_blocks", f"excluded {excluded} static block(s) "
                                    "holding saturated accelerometer samples (flat at the "
                                    "sensor's limit)"))
-    _check_blocks(session, det, settings)
+    _check_blocks(session, det, settings, g_in)
     gyro_sat = None
     if session.has_gyro:
         gyro_sat = saturated_mask(session.gyro)
@@ -72,9 +78,10 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                    session.t_acc[det.blocks[:, 1] - 1]])
     if session.init_still_s is not None:  # a hint the file gave; only reported for now (§1)
         t0, t1 = block_times[0] - session.t_acc[0]
-        warnings.append(f"the file states an initial still period of {session.init_still_s:g} "
-                        f"s; the first still block found spans {t0:.1f}-{t1:.1f} s (the stated "
-                        "length is not used by the detector)")
+        warnings.append(RunWarning(
+            "init_still_stated", f"the file states an initial still period of "
+            f"{session.init_still_s:g} s; the first still block found spans {t0:.1f}-{t1:.1f} s"
+            " (the stated length is not used by the detector)"))
 
     # A first whole-session fit: it gives the grouping calibrated magnitudes (method.md §2).
     whole = calibrate_accelerometer(session.acc, det.blocks, acc_unit=session.acc_unit,
@@ -83,7 +90,8 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     # The grouping fits block means, one point per block where M3 had n_points: scale lambda
     # so that the prior weighs the same against the data.
     lam_blocks = whole.lam * len(det.blocks) / whole.n_points
-    grouping = group_blocks(means_n, whole.theta_nominal, lam_blocks, settings.group)
+    mean_var_n = block_mean_variance(session.acc, det.blocks) / whole.nominal.scale ** 2
+    grouping = group_blocks(means_n, mean_var_n, whole.theta_nominal, lam_blocks, settings.group)
 
     segments = []
     for i, (b0, b1) in enumerate(grouping.segments):
@@ -102,15 +110,21 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                            block_mean_cov(session.acc, blocks, acc_fit),
                                            saturated=gyro_sat)
         n_orient = distinct_orientations(det.means[b0:b1] - acc_fit.model.b)
+        acc_cv = leave_one_block_out(acc_fit, det.means[b0:b1])
         seg = Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
                       t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,
-                      orientations=n_orient)
+                      orientations=n_orient, acc_cv=acc_cv)
         segments.append(seg)
         # A warning names its segment only when there are several: one segment is the session.
         where = i if len(grouping.segments) > 1 else None
         warnings += [w.in_segment(where) for w in acc_fit.warnings]
         if gyro_fit is not None:
             warnings += [w.in_segment(where) for w in gyro_fit.warnings]
+        if acc_cv.overfitted:
+            warnings.append(RunWarning(
+                "acc_overfitted", f"overfitted: still blocks held out of the accelerometer fit "
+                f"are off by {acc_cv.rms_mg:.3g} mg RMS against {acc_cv.in_sample_rms_mg:.3g} mg "
+                f"for the blocks it saw; {acc_cv.advice()}", where))
         if n_orient < 9:
             warnings.append(RunWarning(
                 "few_orientations", f"only {n_orient} distinct still orientations; 9 or more are "
@@ -124,7 +138,9 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         gyro_unit_raw=session.gyro_unit if session.has_gyro else None)
     calibrated = calibration.apply(session)
     quality = quality_figures(session, det, calibrated,
-                              [s.gyro for s in segments if s.gyro is not None], g_in, g_out)
+                              [s.gyro for s in segments if s.gyro is not None],
+                              np.concatenate([s.acc_cv.block_error_mg for s in segments]),
+                              g_in, g_out)
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
                   calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings)
@@ -140,18 +156,50 @@ def _drop_saturated(acc: np.ndarray, det: Detection) -> tuple[Detection, int]:
     return dataclasses.replace(det, blocks=det.blocks[keep], means=det.means[keep]), int(bad.sum())
 
 
-def _check_blocks(session: Session, det: Detection, settings: Settings) -> None:
+# Fewest distinct still orientations a calibration is attempted with: 6 (each face up and down)
+# fix bias and scale, the prior holds the misalignment; 9 determine all of M2 (method.md §3).
+MIN_ORIENTATIONS_FIT = 6
+
+
+def _check_blocks(session: Session, det: Detection, settings: Settings, g_in: float) -> None:
+    """Refuse too little still data, in one line naming the cause and what to record."""
     n = len(det.blocks)
-    if n >= 9:
+    orient = count_orientations(det.means, session.acc_unit, g_in)
+    if n >= 9 and orient >= MIN_ORIENTATIONS_FIT:
         return
-    still = float(np.mean(det.statistic < det.threshold))
-    hint = ("nearly every sample looks still: was the device moved between poses?"
-            if still > 0.9 else
-            "few samples look still: lie the device down for longer, or raise the threshold "
-            f"multiplier (now k = {settings.k:g})")
-    raise ImucalError(f"found {n} static blocks of at least {det.min_len} samples; the "
-                      f"accelerometer model needs 9 or more, from different orientations; {hint}",
-                      source=session.source, field="static blocks")
+    rate = 1.0 / float(np.median(np.diff(session.t_acc)))
+    tun = det.tuning
+    found = (f"found {n} static blocks of at least {det.min_len} samples "
+             f"({det.min_len / rate:.2g} s) in {orient} distinct orientation"
+             f"{'' if orient == 1 else 's'}")
+    still = float(np.sum(det.blocks[:, 1] - det.blocks[:, 0])) / len(session.acc)
+    short = tun.short_holds if tun is not None else 0
+    tried = ""
+    if tun is not None and "k" in tun.tuned:
+        ks = [c.k for c in tun.candidates]
+        ws = sorted({c.window for c in tun.candidates}, reverse=True)
+        tried = (f" (tried k = {min(ks):g}-{max(ks):g} and windows of "
+                 f"{', '.join(str(w) for w in ws)} samples)")
+    if n == 0 and short == 0:
+        cause = (f"no still period at all{tried}: record still poses, each held motionless for "
+                 "a few seconds, with the turns between them")
+    elif orient <= 1 and still > 0.9:
+        cause = ("nearly every sample looks still: was the device moved between poses? record "
+                 "9 or more poses in different directions")
+    elif short >= 9 - n and short > n:
+        cause = (f"the holds are too short: {short} still stretches were shorter than the "
+                 f"{tun.min_hold_s:.2g} s a block needs at the shortest window{tried}; hold "
+                 "each pose still for 1 s or more")
+    elif still < 0.5 and n < 9:
+        hint = (f", or raise the threshold multiplier (now k = {det.k:g})"
+                if settings.k is not None else tried)
+        cause = (f"few samples look still ({still:.0%} in still blocks): lie the device still "
+                 f"for a few seconds in each of 9 or more orientations{hint}")
+    else:
+        cause = (f"too few orientations: the accelerometer model needs 9 or more distinct "
+                 f"still orientations ({MIN_ORIENTATIONS_FIT} at the least, the prior holding "
+                 "the rest): record more poses, each face up and down and tilted between them")
+    raise ImucalError(f"{found}; {cause}", source=session.source, field="static blocks")
 
 
 __all__ = ["Result", "Segment", "Settings", "calibrate", "select_points", "make_nominal"]

@@ -35,6 +35,7 @@ class QualityRow:
     label: str  # with its unit: "static norm error (mg)"
     figure: BeforeAfter
     note: str  # what the figure is made of, in a few words
+    held_out: float | None = None  # the "after" figure out of sample (method.md §5)
 
 
 @dataclass(frozen=True)
@@ -90,12 +91,14 @@ def report(result: Result) -> Report:
     and the warnings."""
     q = result.quality
     quality = [
-        QualityRow("static norm error (mg)", q.static_norm_rms_mg, "RMS over the block means"),
+        QualityRow("static norm error (mg)", q.static_norm_rms_mg, "RMS over the block means",
+                   q.static_norm_cv_mg),
         QualityRow("sample norm error (mg)", q.sample_norm_rms_mg, "single samples: sensor noise"),
     ]
     if q.gravity_angle_rms_deg is not None:
         quality.append(QualityRow("gravity angle (deg)", q.gravity_angle_rms_deg,
-                                  "RMS over the rotations: measured vs integrated"))
+                                  "RMS over the rotations: measured vs integrated",
+                                  q.gravity_angle_cv_deg))
     return Report(title=Path(result.session.source).name, overview=_overview(result),
                   quality=tuple(quality), quality_notes=tuple(q.notes),
                   segments=tuple(_segment(result, seg) for seg in result.segments),

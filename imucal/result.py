@@ -11,6 +11,7 @@ from imucal.numerics.windows import mask_of_runs, samples_within
 from imucal.session import Session
 from imucal.settings import Settings
 from imucal.stages.accel import AccFit
+from imucal.stages.accel_cv import AccCrossValidation
 from imucal.stages.apply import CalibratedSignals, Calibration
 from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
@@ -28,6 +29,7 @@ class Segment:
     acc: AccFit
     gyro: GyroFit | None
     orientations: int  # distinct still orientations (15 degrees apart)
+    acc_cv: AccCrossValidation  # each still block predicted by the fit without it (§5)
 
     @property
     def n_blocks(self) -> int:

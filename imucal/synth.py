@@ -121,6 +121,7 @@ def make_session(
     gyro_truth: SensorModel | None = None,
     gyro_drift: float = 0.0,
     change_at: float | None = None,
+    acc_change: tuple[float, float] | None = None,
     acc_unit: str = "g",
     counts_per_g: float = 4096.0,
     gyro_unit: str = "rad/s",
@@ -131,6 +132,9 @@ def make_session(
     Noise is white, per axis, in g (accelerometer) and rad/s (gyroscope). ``change_at`` (a
     fraction of the poses) switches both sensors to freshly drawn parameters at the start of
     the turn that leaves that pose: a change of error conditions mid-session (method.md §2).
+    ``acc_change`` (scale, bias) makes the accelerometer's change a knock of chosen size
+    instead: each scale multiplied by 1 +- scale (random signs), the bias moved by ``bias`` g
+    in a random direction (drawn apart, so the rest of the session is the same for any size).
     ``gyro_drift`` is the total change of the gyroscope bias over the session, rad/s.
     ``acc_unit`` "g", "m/s^2" or "counts"; ``gyro_unit`` "rad/s", "deg/s" or "counts". A
     session holds rad/s or counts (:class:`~imucal.session.Session`), so "deg/s" gives rad/s
@@ -149,6 +153,13 @@ def make_session(
     t_change = None
     if change_at is not None:
         acc2, gyro2 = random_acc_model(rng, bias=0.08), random_gyro_model(rng)
+        if acc_change is not None:
+            knock = np.random.default_rng([seed, 1])
+            direction = knock.normal(0, 1, 3)
+            direction /= np.linalg.norm(direction)
+            acc2 = SensorModel(T=acc_truth.T,
+                               K=acc_truth.K * (1 + acc_change[0] * knock.choice([-1, 1], 3)),
+                               b=acc_truth.b + acc_change[1] * direction)
         t_change = float(motion.still[int(change_at * poses), 1])
     drift = rng.normal(0, 1, 3)
     drift = gyro_drift * drift / np.linalg.norm(drift) / max(duration, 1e-9)

@@ -20,3 +20,19 @@ def shared_data() -> Path:
 @pytest.fixture(scope="session")
 def sample_session_path() -> Path:
     return ROOT / "sample_data" / "session.mat"
+
+
+@pytest.fixture(scope="session")
+def native_viewer() -> None:
+    """The native viewer can render here, else skip naming the package (fail in CI)."""
+    from viewer_env import need_native_viewer
+
+    need_native_viewer()
+
+
+@pytest.fixture(scope="session")
+def chromium_path() -> str:
+    """Chromium for the web viewer test, else skip naming the package (fail in CI)."""
+    from viewer_env import need_chromium
+
+    return need_chromium()

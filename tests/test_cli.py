@@ -368,3 +368,26 @@ def test_xsens_real_data(tmp_path: Path) -> None:
     calib = json.loads((tmp_path / "c.json").read_text())
     assert calib["units"]["accelerometer_raw"] == "counts"
     assert calib["quality"]["static_norm_rms_mg"]["after"] <= 0.12
+
+
+def test_main_puts_back_the_process_hooks_it_installs(tmp_path: Path) -> None:
+    """An in-process run (a test, a notebook, a batch worker) keeps its own SIGTERM handler and
+    warnings hook afterwards (was: every later SIGTERM became a KeyboardInterrupt)."""
+    import signal
+    import warnings
+
+    from imucal.cli import main
+
+    def mine(signum, frame):  # pragma: no cover - only identity matters
+        pass
+
+    before = signal.signal(signal.SIGTERM, mine)
+    show = warnings.showwarning
+    try:
+        assert main(["--version"]) == 0
+        assert main(["calibrate", str(tmp_path / "missing.mat"), "--out",
+                     str(tmp_path / "c.json")]) == 1
+        assert signal.getsignal(signal.SIGTERM) is mine
+        assert warnings.showwarning is show
+    finally:
+        signal.signal(signal.SIGTERM, before)

@@ -67,12 +67,26 @@ def test_wander_ratio_tells_still_from_moving():
 
 
 @pytest.mark.parametrize("still_at_start", [0.0, 1.0, 2.0])
-def test_moving_start_learns_the_noise_from_the_first_still_stretch(still_at_start):
+def test_moving_start_learns_the_noise_from_the_quiet_stretches(still_at_start):
     """Without a still start the threshold learned from 0.5-3 s would be motion's: blocks would
     swallow turns and the calibration be wrong by tens of mg (measured: 51 mg, 21 degrees).
-    The first still stretch is used instead, and the user is told."""
+    The quiet level of the whole recording is used instead, and the user is told."""
     session, truth = make_session(poses=30, seed=2, init_still=still_at_start)
     r = imucal.calibrate(session)
+    assert r.detection.init is None
+    assert "quiet level" in r.detection.tuning.reference
+    assert any("moves during the initial still interval 0.5-3 s" in w.message
+               and "quietest stretches" in w.message for w in r.warnings)
+    assert r.quality.static_norm_rms_mg.after < 0.5
+    assert r.quality.gravity_angle_rms_deg.after < 0.2
+    assert len(r.detection.blocks) >= 29
+
+
+@pytest.mark.parametrize("still_at_start", [0.0, 1.0, 2.0])
+def test_moving_start_given_interval_slides_to_the_first_still_stretch(still_at_start):
+    """An interval the user gives (--init) that moves: the first still stretch as long."""
+    session, truth = make_session(poses=30, seed=2, init_still=still_at_start)
+    r = imucal.calibrate(session, init=(0.5, 3.0))
     assert r.detection.init != (0.5, 3.0)
     assert r.detection.init[0] >= still_at_start  # after the first turn began
     assert any("moves during the initial still interval 0.5-3 s" in w.message
@@ -141,19 +155,21 @@ def test_single_segment_mode():
 def test_fast_split_search_agrees_with_exhaustive():
     # best_split scores every boundary by a Gauss-Newton model and fits only the best few;
     # it must land where fitting both sides of every boundary does.
-    from imucal.stages.group import _fit, best_split
+    from imucal.stages.group import _fit, best_split, block_mean_variance, block_weights
 
     for seed, change in ((31, 0.4), (32, 0.65), (33, None)):
         session, _ = make_session(poses=36, seed=seed, change_at=change)
         r = imucal.calibrate(session, single_segment=True)
         m = r.whole.nominal.to_nominal(r.detection.means)
+        var = block_mean_variance(session.acc, r.detection.blocks) / r.whole.nominal.scale**2
         lam = r.whole.lam * len(m) / r.whole.n_points
         start = r.whole.theta_nominal
-        k = 12
+        w, _ = block_weights(m, var, start)
+        js = np.arange(12, len(m) - 12 + 1)
         costs = {}
-        for j in range(k, len(m) - k + 1):
-            _, c_a, _ = _fit(m[:j], start, lam)
-            _, c_b, _ = _fit(m[j:], start, lam)
-            costs[j] = c_a + c_b
+        for j in js:
+            _, c_a, _ = _fit(m[:j], w[:j], start, lam, centre=start)
+            _, c_b, _ = _fit(m[j:], w[j:], start, lam, centre=start)
+            costs[int(j)] = c_a + c_b
         exhaustive = min(costs, key=lambda j: (costs[j], j))
-        assert best_split(m, start, lam, k)[0] == exhaustive
+        assert best_split(m, w, start, lam, js)[0] == exhaustive

@@ -12,7 +12,8 @@ from imucal.models import GYRO_THETA0, SensorModel
 from imucal.numerics.kfold import fold_of_groups, kfold_refits
 from imucal.numerics.least_squares import fit_tikhonov
 from imucal.settings import Settings
-from imucal.stages.gyro import Transitions, angle_between, calibrate_gyroscope, gyro_model_of
+from imucal.stages.gyro import calibrate_gyroscope
+from imucal.stages.gyro_transitions import Transitions, angle_between, gyro_model_of
 from imucal.synth import make_session
 
 ROOT = Path(__file__).resolve().parents[1]

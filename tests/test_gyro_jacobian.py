@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
+from imucal.models import GYRO_THETA0
 from imucal.numerics import quaternion as quat
 from imucal.numerics.rk4 import prefix_rows
-from imucal.stages.gyro import GYRO_THETA0, Transitions, gyro_model_of
+from imucal.stages.gyro_transitions import Transitions, gyro_model_of
 from imucal.synth import make_session
 
 

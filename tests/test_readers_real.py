@@ -116,7 +116,7 @@ def test_a_two_column_table_is_no_preamble(tmp_path):
 def test_the_stated_initial_still_period_reaches_the_result_as_a_note(synthetic):
     session, _ = synthetic
     s = imucal.calibrate(imucal.Session(**{**session.__dict__, "init_still_s": 30.0}))
-    note = [w for w in s.warnings if "initial still period" in w]
+    note = [w.message for w in s.warnings if "initial still period" in w.message]
     assert len(note) == 1 and note[0].startswith("the file states an initial still period of "
                                                  "30 s; the first still block found spans 0.0-")
 

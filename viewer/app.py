@@ -8,7 +8,9 @@ A session file is loaded (:func:`imucal.load_session`), calibrated and recorded;
   URL; runs until Ctrl-C.
 - otherwise the native viewer opens the recording. Where there is no display (neither
   ``DISPLAY`` nor ``WAYLAND_DISPLAY`` is set) it says so in one line and writes
-  ``<session stem>.rrd`` in the current directory instead; it never waits for a window.
+  ``<session stem>.rrd`` in the current directory instead (``<stem>-1.rrd``, ``-2`` ... when
+  that name is taken: a name the user did not give never replaces a file); it never waits
+  for a window.
 
 It is ``imucal view`` under its own name: the same options (``--gyro`` for a two-file session,
 units, every calibration setting) and the same one-line errors with exit code 1.
@@ -30,7 +32,7 @@ from typing import TYPE_CHECKING
 from urllib.parse import quote
 
 from imucal.errors import ImucalError
-from imucal.io.atomic import atomic_path, check_output_path
+from imucal.io.atomic import Transaction
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -82,23 +84,46 @@ def web_command(rerun: str, rrd: str | os.PathLike, web_port: int, grpc_port: in
 
 
 def record(target: str | os.PathLike, out: str | os.PathLike,
-           load_options: dict | None = None, **calibrate_kwargs) -> Result:
-    """Load and calibrate a session, write its recording to ``out`` (atomically)."""
+           load_options: dict | None = None, *, exclusive: bool = False,
+           **calibrate_kwargs) -> Result:
+    """Load and calibrate a session, write its recording to ``out`` (atomically: temporary
+    file, then rename; ``exclusive``: never replace a file of that name)."""
     import imucal
 
     from .recording import save_recording
 
-    check_output_path(out, inputs=(target,))
-    session = imucal.load_session(target, **(load_options or {}))
-    result = imucal.calibrate(session, **calibrate_kwargs)
-    save_recording(result, out)
+    with Transaction([out], inputs=[target], exclusive=[out] if exclusive else []) as tx:
+        session = imucal.load_session(target, **(load_options or {}))
+        result = imucal.calibrate(session, **calibrate_kwargs)
+        with tx.writing(out) as tmp, open(tmp, "wb") as f:
+            save_recording(result, f)
+        tx.commit()
     return result
 
 
-def _copy_atomic(src: Path, dst: str | os.PathLike) -> None:
-    check_output_path(dst, inputs=(src,))
-    with atomic_path(dst) as tmp:
-        shutil.copyfile(src, tmp)
+def free_name(directory: Path, stem: str, suffix: str = ".rrd") -> Path:
+    """``stem.rrd`` in ``directory``, else the first free ``stem-1.rrd``, ``stem-2.rrd``, ...:
+    the name imucal picks itself never replaces a file."""
+    n = 0
+    while True:
+        path = directory / f"{stem}{'' if n == 0 else f'-{n}'}{suffix}"
+        if not os.path.lexists(path):
+            return path
+        n += 1
+
+
+def _copy_recording(src: Path, dst: str | os.PathLike) -> None:
+    """Copy a saved recording, after checking that it is one (its RRF header): not any file
+    that ends in .rrd."""
+    with open(src, "rb") as f:
+        head = f.read(4)
+    if head[:3] != RRD_MAGIC:
+        raise ImucalError("not a Rerun recording (no RRF header); nothing was copied",
+                          source=str(src))
+    with Transaction([dst], inputs=[src]) as tx:
+        with tx.writing(dst) as tmp:
+            shutil.copyfile(src, tmp)
+        tx.commit()
 
 
 def _run(cmd: list[str]) -> int:
@@ -160,7 +185,7 @@ def show(target: str, *, save: str | None = None, web: bool = False, port: int =
 
     if save is not None:
         if rrd:
-            _copy_atomic(src, save)
+            _copy_recording(src, save)
         else:
             record(src, save, load_options, **calibrate_kwargs)
         print(f"wrote {save}")
@@ -171,8 +196,8 @@ def show(target: str, *, save: str | None = None, web: bool = False, port: int =
             raise ImucalError("no display (neither DISPLAY nor WAYLAND_DISPLAY is set): cannot "
                               "open it here; try --web, or open it where there is a display",
                               source=str(src))
-        out = Path.cwd() / f"{src.stem}.rrd"
-        record(src, out, load_options, **calibrate_kwargs)
+        out = free_name(Path.cwd(), src.stem)
+        record(src, out, load_options, exclusive=True, **calibrate_kwargs)
         print(f"no display (neither DISPLAY nor WAYLAND_DISPLAY is set): wrote {out} instead; "
               "open it where there is a display, or use --web")
         return 0

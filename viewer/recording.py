@@ -123,11 +123,11 @@ from __future__ import annotations
 import os
 import uuid
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, BinaryIO
 
 import rerun as rr
 
-from imucal.io.atomic import atomic_path, check_output_path
+from imucal.io.atomic import atomic_path
 
 from . import paths as P
 from .decimate import DECIMATE_ABOVE, ENVELOPE_ROWS
@@ -165,21 +165,21 @@ def new_recording() -> rr.RecordingStream:
     return rr.RecordingStream(P.APPLICATION_ID, recording_id=uuid.uuid4())
 
 
-def save_recording(result: Result, path: str | os.PathLike) -> dict[str, int]:
-    """Write ``result`` with its layout to one ``.rrd`` file, atomically (a temporary file in
-    the same directory, then a rename): an interrupted run never leaves half a file.
+def save_recording(result: Result, path: str | os.PathLike | BinaryIO) -> dict[str, int]:
+    """Write ``result`` with its layout as one ``.rrd``: to ``path`` atomically (a temporary
+    file in the same directory, then a rename), or to an open binary file (a run's
+    transaction owns the rename). Bounded and interruptible: see :mod:`viewer.rrd_file`.
 
     Returns the rows logged per temporal entity (see :func:`log_result`).
     """
+    if not hasattr(path, "write"):
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            return save_recording(result, f)
     from .blueprint import blueprint
+    from .rrd_file import rrd_sink
 
-    check_output_path(path)
-    with atomic_path(path) as tmp:
-        rec = new_recording()
-        rec.save(tmp, default_blueprint=blueprint(result))
+    rec = new_recording()
+    with rrd_sink(rec, path, default_blueprint=blueprint(result)):
         rec.send_recording_name(Path(result.session.source).name or "imucal")
         rows = log_result(result, rec)
-        rec.flush()
-        rec.disconnect()  # closes the file sink: the footer is written before the rename
-        del rec
     return rows

@@ -65,7 +65,7 @@ def log_detector(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) 
     style_lines(rec, P.DETECTOR_STATISTIC, ["log10 s2 (M1)"], [0x4E79A7FF])
     rows[P.DETECTOR_THRESHOLD] = send_scalars(rec, P.DETECTOR_THRESHOLD, [t[0], t[-1]],
                                               np.full(2, log10_axis(det.threshold)))
-    style_lines(rec, P.DETECTOR_THRESHOLD, [f"log10 threshold (k = {result.settings.k:g})"],
+    style_lines(rec, P.DETECTOR_THRESHOLD, [f"log10 threshold (k = {result.detection.k:.3g})"],
                 [BEFORE], width=2.0)
     _log_lanes(result, rec, rows)
 

@@ -71,10 +71,12 @@ def summary_markdown(result: Result) -> str:
 def report_markdown(rep: Report) -> str:
     lines = [f"# IMU calibration: {rep.title}", ""]
     lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.overview]
-    lines += ["", "## Quality", "", "| figure | before | after |", "|---|---:|---:|"]
+    lines += ["", "## Quality", "", "| figure | before | after | held out |",
+              "|---|---:|---:|---:|"]
     for row in rep.quality:
+        held = "" if row.held_out is None else fmt(row.held_out, '.4g')
         lines.append(f"| {row.label} — {row.note} | {fmt(row.figure.before, '.4g')} | "
-                     f"{fmt(row.figure.after, '.4g')} |")
+                     f"{fmt(row.figure.after, '.4g')} | {held} |")
     lines += [f"- {n}" for n in rep.quality_notes]
     lines.append("")
     for seg in rep.segments:

@@ -29,10 +29,14 @@ from imucal.cli.options import (
 )
 from imucal.cli.outputs import (
     Progress,
+    check_inputs,
+    check_magnitudes,
     check_outputs,
     fmt_rate,
     gyro_sidecar,
+    removed_lines,
     viewer_available,
+    write_signals,
     written_tables,
 )
 from imucal.cli.summary import print_summary
@@ -54,33 +58,41 @@ app = typer.Typer(
 # --- commands ----------------------------------------------------------------------------------
 
 
+# Output paths are taken as typed (str): a Path would drop the "/" of "--out newname/".
+
+
 @app.command()
 @shared_options(INPUT_OPTIONS, SETTING_OPTIONS)
 def calibrate(
     session: SessionArg,
-    out: Annotated[Path, typer.Option("--out", "-o", metavar="CALIB.json", show_default=False,
-                                      help="Calibration file to write (JSON).")],
-    rrd: Annotated[Path | None, typer.Option(
+    out: Annotated[str, typer.Option("--out", "-o", metavar="CALIB.json", show_default=False,
+                                     help="Calibration file to write (JSON).")],
+    rrd: Annotated[str | None, typer.Option(
         "--rrd", metavar="RUN.rrd", help="Also save a Rerun recording of every step.")] = None,
-    calibrated: Annotated[Path | None, typer.Option(
+    calibrated: Annotated[str | None, typer.Option(
         "--calibrated", metavar="OUT.parquet|.csv|.mat",
         help="Also write the calibrated signals.")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
-    """Calibrate a recording and write the calibration file (and optionally more)."""
+    """Calibrate a recording and write the calibration file (and optionally more).
+
+    Every output is written to a temporary file and renamed into place only when all are
+    complete: a failed or interrupted run changes no file.
+    """
     settings = build_settings(**pick(options, SETTING_OPTIONS))
+    check_magnitudes(settings)
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    gyro = options["gyro"]
-    inputs = [session, gyro]
+    inputs = [session, options["gyro"]]
+    check_inputs(inputs)
     if calibrated is not None:
         from imucal.io.export import output_format
 
         output_format(calibrated)
-    outputs = [out, rrd, calibrated]
-    if calibrated is not None and calibrated.suffix.lower() != ".mat":
-        outputs.append(gyro_sidecar(calibrated))
-    check_outputs(outputs, inputs)
+    from imucal.io.atomic import Transaction
+
+    side = _sidecar(calibrated)
+    tx = Transaction([out, calibrated, side, rrd], inputs=inputs)
     save_recording = None
     if rrd is not None:
         with viewer_available():
@@ -89,25 +101,33 @@ def calibrate(
     progress = Progress(verbose)
     import imucal
 
-    with progress.stage(f"loading {session.name}"):
-        sess = imucal.load_session(session, **load_kw)
-    with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
-        result = imucal.calibrate(sess, **settings)
-    written = []
-    with progress.stage(f"writing {out}"):
-        imucal.save_calibration(result, out)
-    written.append(str(out))
+    with tx:
+        with progress.stage(f"loading {session.name}"):
+            sess = imucal.load_session(session, **load_kw)
+        with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
+            result = imucal.calibrate(sess, **settings)
+        with progress.stage(f"writing {out}"), tx.writing(out) as tmp:
+            imucal.save_calibration(result, tmp)
+        if calibrated is not None:
+            with progress.stage(f"writing {calibrated}"):
+                write_signals(tx, calibrated, result.calibrated)
+        if rrd is not None and save_recording is not None:
+            with progress.stage(f"writing {rrd}"), tx.writing(rrd) as tmp, open(tmp, "wb") as f:
+                save_recording(result, f)
+        tx.commit()
+    written = [out]
     if calibrated is not None:
-        from imucal.io.export import write_calibrated
-
-        with progress.stage(f"writing {calibrated}"):
-            write_calibrated(calibrated, result.calibrated)
-        written += written_tables(calibrated, result.calibrated)
-    if rrd is not None and save_recording is not None:
-        with progress.stage(f"writing {rrd}"):
-            save_recording(result, rrd)
-        written.append(str(rrd))
+        written += written_tables(Path(calibrated), result.calibrated)
+    written += [rrd] if rrd is not None else []
     print_summary(result, written)
+    if tx.removed:
+        print("\n".join(removed_lines(tx.removed, result.calibrated)))
+
+
+def _sidecar(table: str | None) -> Path | None:
+    if table is None or Path(table).suffix.lower() == ".mat":
+        return None
+    return gyro_sidecar(Path(table))
 
 
 @app.command()
@@ -116,7 +136,7 @@ def apply(
     calibration: Annotated[Path, typer.Argument(metavar="CALIB.json", show_default=False,
                                                 help="Calibration file from 'imucal calibrate'.")],
     session: SessionArg,
-    out: Annotated[Path, typer.Option(
+    out: Annotated[str, typer.Option(
         "--out", "-o", metavar="OUT.parquet|.csv|.mat", show_default=False,
         help="Calibrated signals to write; the format follows the name.")],
     options: dict[str, Any] = None,  # INPUT_OPTIONS
@@ -129,21 +149,25 @@ def apply(
     from imucal.io.export import output_format
 
     output_format(out)
-    outputs = [out] + ([gyro_sidecar(out)] if out.suffix.lower() != ".mat" else [])
-    check_outputs(outputs, [calibration, session, options["gyro"]])
+    inputs = [calibration, session, options["gyro"]]
+    check_inputs(inputs)
+    from imucal.io.atomic import Transaction
+
+    tx = Transaction([out, _sidecar(out)], inputs=inputs)
     progress = Progress(verbose)
     import imucal
-    from imucal.io.export import write_calibrated
 
-    with progress.stage(f"reading {calibration.name}"):
-        cal = imucal.load_calibration(calibration)
-    load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    with progress.stage(f"loading {session.name}"):
-        sess = imucal.load_session(session, **load_kw)
-    with progress.stage("applying"):
-        signals = cal.apply(sess)
-    with progress.stage(f"writing {out}"):
-        write_calibrated(out, signals)
+    with tx:
+        with progress.stage(f"reading {calibration.name}"):
+            cal = imucal.load_calibration(calibration)
+        load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
+        with progress.stage(f"loading {session.name}"):
+            sess = imucal.load_session(session, **load_kw)
+        with progress.stage("applying"):
+            signals = cal.apply(sess)
+        with progress.stage(f"writing {out}"):
+            write_signals(tx, out, signals)
+        tx.commit()
     import numpy as np
 
     norm = signals.acc_norm
@@ -161,7 +185,8 @@ def apply(
     if sess.notes:
         lines.append("notes:")
         lines += [f"  - {n}" for n in sess.notes]
-    lines += [f"wrote {w}" for w in written_tables(out, signals)]
+    lines += [f"wrote {w}" for w in written_tables(Path(out), signals)]
+    lines += removed_lines(tx.removed, signals)
     print("\n".join(lines))
 
 
@@ -264,7 +289,7 @@ def view(
     target: Annotated[Path, typer.Argument(
         metavar="SESSION|RUN.rrd", show_default=False,
         help="A recording to calibrate and show, or a saved .rrd to open.")],
-    save: Annotated[Path | None, typer.Option(
+    save: Annotated[str | None, typer.Option(
         "--save", metavar="FILE.rrd", help="Save the recording instead of opening a viewer.")
     ] = None,
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer.")] = False,
@@ -275,21 +300,24 @@ def view(
     """Calibrate a recording and show every step in Rerun (or open a saved .rrd).
 
     Without a display (and without --web) the recording is written to SESSION-STEM.rrd in the
-    current directory instead.
+    current directory instead (SESSION-STEM-1.rrd, -2, ... if that name is taken: a file
+    imucal named itself never replaces another).
     """
     settings = build_settings(**pick(options, SETTING_OPTIONS))
+    check_magnitudes(settings)
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
     gyro = options["gyro"]
     load_defaults = load_kwargs(**{name: default for name, _, default in INPUT_OPTIONS})
     load_options = {key: v for key, v in load_kw.items() if v != load_defaults[key]}
     overrides = {key: v for key, v in settings.items() if v != DEFAULTS[key]}
+    check_inputs([target, gyro])
     if not target.exists():
         raise ImucalError("file not found", source=str(target))
     if save is not None:
         check_outputs([save], [target, gyro])
     with viewer_available():
         from viewer.app import show
-    rc = show(str(target), save=None if save is None else str(save), web=web, port=port,
+    rc = show(str(target), save=save, web=web, port=port,
                  load_options=load_options or None, **overrides)
     return int(rc or 0)
 

@@ -20,6 +20,8 @@ import sys
 
 import typer
 
+from imucal.cli import fleet as _fleet  # noqa: F401  (registers batch and store on app)
+from imucal.cli import tools  # noqa: F401  (registers export and noise on app)
 from imucal.cli.commands import app
 from imucal.errors import ImucalError
 
@@ -56,7 +58,23 @@ def main(argv: list[str] | None = None, *, command: str | None = None,
     """Run the command line; return the exit code (never a traceback for the user).
 
     ``command`` runs one subcommand directly under the name ``prog`` (``imucal-view`` is
-    ``imucal view``)."""
+    ``imucal view``). The process-wide hooks a run installs (the SIGTERM handler, the one-line
+    warnings) are put back when it returns, so a caller in the same process (a test, a
+    notebook, a batch) keeps its own."""
+    import signal
+    import warnings
+
+    old_term = signal.getsignal(signal.SIGTERM)
+    old_show = warnings.showwarning
+    try:
+        return _main(argv, command=command, prog=prog)
+    finally:
+        warnings.showwarning = old_show
+        with contextlib.suppress(ValueError, TypeError):  # not the main thread: never set
+            signal.signal(signal.SIGTERM, old_term)
+
+
+def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
     import warnings
 
     args = sys.argv[1:] if argv is None else list(argv)
@@ -71,6 +89,11 @@ def main(argv: list[str] | None = None, *, command: str | None = None,
 
     with contextlib.suppress(ValueError):  # not the main thread (tests): keep the default
         signal.signal(signal.SIGTERM, _on_sigterm)
+    # A terminal or PYTHONIOENCODING that cannot show a character (the summary's file names,
+    # a unit) gets an escape for it, not a UnicodeEncodeError after the files were written.
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError, OSError):
+            stream.reconfigure(errors="backslashreplace")
     debug = os.environ.get("IMUCAL_DEBUG", "") not in ("", "0")
     if not debug:
         warnings.showwarning = functools.partial(_show_warning, prog=prog)

@@ -22,7 +22,14 @@ def _settings_defaults() -> dict[str, Any]:
     return dataclasses.asdict(Settings())
 
 
+def _thesis_init() -> tuple[float, float]:
+    from imucal.settings import THESIS_INIT
+
+    return THESIS_INIT
+
+
 DEFAULTS: dict[str, Any] = _settings_defaults()
+THESIS_INIT = _thesis_init()  # the initial still interval when --init is not given
 SETTINGS = tuple(DEFAULTS)  # every setting's name: its flag, and its key in calib.json
 ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 
@@ -185,23 +192,26 @@ VerboseOpt = Annotated[bool, typer.Option(
 
 WindowOpt = Annotated[int | None, typer.Option(
     "--window", metavar="N", callback=at_least(3), rich_help_panel=_DET, show_default=False,
-    help="Variance window in samples [default: 1.01 s at the session's rate].")]
+    help="Variance window in samples [default: chosen from the recording: 1.01 s at its rate, "
+         "shorter for short holds].")]
 MinLenOpt = Annotated[int | None, typer.Option(
     "--min-len", metavar="N", callback=at_least(1), rich_help_panel=_DET, show_default=False,
-    help="Shortest static block in samples [default: 1 s at the session's rate].")]
-KOpt = Annotated[float, typer.Option(
-    "--k", metavar="K", callback=positive, rich_help_panel=_DET,
-    help="Threshold multiplier: still where s2 < k * s2_init.")]
+    help="Shortest static block in samples [default: chosen with the window, 1 s for "
+         "1.01 s].")]
+KOpt = Annotated[float | None, typer.Option(
+    "--k", metavar="K", callback=positive, rich_help_panel=_DET, show_default=False,
+    help="Threshold multiplier: still where s2 < k * s2_init [default: chosen from the "
+         "recording by a cross-validated error].")]
 InitOpt = Annotated[tuple[float, float] | None, typer.Option(
     "--init", metavar="START END", rich_help_panel=_DET, show_default=False,
-    help="Initial still interval, seconds from the first sample "
-         f"[default: {DEFAULTS['init'][0]:g} {DEFAULTS['init'][1]:g}].")]
+    help="Initial still interval, seconds from the first sample [default: "
+         f"{THESIS_INIT[0]:g} {THESIS_INIT[1]:g} when still there, else the quietest stretches].")]
 InitStartOpt = Annotated[float | None, typer.Option(
     "--init-start", metavar="S", rich_help_panel=_DET, show_default=False,
-    help=f"Start of the initial still interval [default: {DEFAULTS['init'][0]:g}].")]
+    help=f"Start of the initial still interval [default: {THESIS_INIT[0]:g}].")]
 InitEndOpt = Annotated[float | None, typer.Option(
     "--init-end", metavar="S", rich_help_panel=_DET, show_default=False,
-    help=f"End of the initial still interval [default: {DEFAULTS['init'][1]:g}].")]
+    help=f"End of the initial still interval [default: {THESIS_INIT[1]:g}].")]
 StatisticOpt = Annotated[str, typer.Option(
     "--statistic", metavar="thesis|imu_tk", callback=_one_of("thesis", "imu_tk"),
     rich_help_panel=_DET,
@@ -209,9 +219,16 @@ StatisticOpt = Annotated[str, typer.Option(
 SingleSegmentOpt = Annotated[bool, typer.Option(
     "--single-segment", rich_help_panel=_GRP,
     help="One segment for the whole session (imu_tk's behaviour).")]
-DeltaOpt = Annotated[float, typer.Option(
-    "--delta", callback=positive, rich_help_panel=_GRP,
-    help="Jump of the calibrated still magnitude, relative to |g|, that starts a new segment.")]
+SplitAlphaOpt = Annotated[float, typer.Option(
+    "--split-alpha", metavar="P", callback=fraction, rich_help_panel=_GRP,
+    help="Significance level of the test that splits the session where its error conditions "
+         "change (F-test of one accelerometer fit against two on the block means, Bonferroni "
+         "over the boundaries tried).")]
+DeltaOpt = Annotated[float | None, typer.Option(
+    "--delta", metavar="VALUE", callback=positive, rich_help_panel=_GRP, show_default=False,
+    help="Decide splits by a fixed threshold instead of the test: the change of the calibrated "
+         "still magnitude, relative to |g|, that starts a new segment (thesis: 0.01) "
+         "[default: decided by the test].")]
 MinBlocksOpt = Annotated[int, typer.Option(
     "--min-blocks", metavar="N", callback=at_least(1), rich_help_panel=_GRP,
     help="Fewest static blocks a segment may have.")]
@@ -223,10 +240,13 @@ LambdaOpt = Annotated[str, typer.Option(
     "--lambda", metavar="auto|VALUE", callback=_lambda, rich_help_panel=_ACC,
     help="Tikhonov weight: auto (L-curve corner) or a fixed value >= 0.")]
 PointsOpt = Annotated[str, typer.Option(
-    "--points", metavar="thesis|chunks|mean", callback=_one_of("thesis", "chunks", "mean"),
-    rich_help_panel=_ACC,
-    help="Fit points per block: thesis (99 samples averaged in groups of 10), chunks (10 "
-         "chunk means) or mean (one per block).")]
+    "--points", metavar="ml|mean|chunks|thesis",
+    callback=_one_of("ml", "mean", "chunks", "thesis"), rich_help_panel=_ACC,
+    help="Fit points per block: ml (maximum likelihood: one per block, its mean, weighted by "
+         "the square root of its length, evened out where the blocks scatter more than white "
+         "noise, the noise bias of the norm removed), mean (the plain block mean), chunks "
+         "(--n-group chunk means) or thesis (--n-select samples averaged in groups of "
+         "--n-group).")]
 LambdasOpt = Annotated[str | None, typer.Option(
     "--lambdas", metavar="L1,L2,...", callback=_lambdas_option, rich_help_panel=_ACC,
     show_default=False,
@@ -265,7 +285,8 @@ SETTING_OPTIONS = (
     ("k", KOpt, DEFAULTS["k"]), ("init", InitOpt, None), ("init_start", InitStartOpt, None),
     ("init_end", InitEndOpt, None), ("statistic", StatisticOpt, DEFAULTS["statistic"]),
     ("single_segment", SingleSegmentOpt, DEFAULTS["single_segment"]),
-    ("delta", DeltaOpt, DEFAULTS["delta"]), ("min_blocks", MinBlocksOpt, DEFAULTS["min_blocks"]),
+    ("split_alpha", SplitAlphaOpt, DEFAULTS["split_alpha"]), ("delta", DeltaOpt, DEFAULTS["delta"]),
+    ("min_blocks", MinBlocksOpt, DEFAULTS["min_blocks"]),
     ("g", GOpt, DEFAULTS["g"]), ("lam", LambdaOpt, DEFAULTS["lam"]),
     ("lambdas", LambdasOpt, None), ("points", PointsOpt, DEFAULTS["points"]),
     ("n_select", NSelectOpt, DEFAULTS["n_select"]), ("n_group", NGroupOpt, DEFAULTS["n_group"]),
@@ -311,21 +332,23 @@ def pick(options: dict[str, Any], group: tuple) -> dict[str, Any]:
 
 
 def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
-                   single_segment, delta, min_blocks, g, lam, lambdas, points, n_select, n_group,
-                   gyro_lambda, gyro_bias, optimise_gyro_bias, gyro_sensitivity
+                   single_segment, split_alpha, delta, min_blocks, g, lam, lambdas, points,
+                   n_select, n_group, gyro_lambda, gyro_bias, optimise_gyro_bias, gyro_sensitivity
                    ) -> dict[str, Any]:
     """The options as keyword arguments of imucal.calibrate (every key of Settings)."""
     if init is not None and (init_start is not None or init_end is not None):
         raise usage_error("give the initial interval either as --init START END or as "
                           "--init-start/--init-end, not both", "'--init'")
-    start, end = init if init is not None else DEFAULTS["init"]
+    start, end = init if init is not None else THESIS_INIT
     start = start if init_start is None else init_start
     end = end if init_end is None else init_end
     if not (math.isfinite(start) and math.isfinite(end) and 0 <= start < end):
         raise usage_error(f"the initial still interval must satisfy 0 <= START < END, got "
                           f"{start:g} {end:g}", "'--init'")
-    return {"window": window, "min_len": min_len, "k": k, "init": (start, end),
-            "statistic": statistic, "single_segment": single_segment, "delta": delta,
+    given = init is not None or init_start is not None or init_end is not None
+    return {"window": window, "min_len": min_len, "k": k, "init": (start, end) if given else None,
+            "statistic": statistic, "single_segment": single_segment,
+            "split_alpha": split_alpha, "delta": delta,
             "min_blocks": min_blocks, "g": g, "lam": lam if lam == "auto" else float(lam),
             "lambdas": DEFAULTS["lambdas"] if lambdas is None else _lambdas(lambdas),
             "points": points, "n_select": n_select, "n_group": n_group,

@@ -46,27 +46,56 @@ def _isatty(stream) -> bool:
         return False
 
 
-def check_outputs(outputs: list[Path | None], inputs: list[Path | None]) -> list[Path]:
-    """Refuse bad output paths before any work: missing directory, an input, or a duplicate."""
-    from imucal.io.atomic import check_output_path
+def check_outputs(outputs: list[Path | str | None], inputs: list[Path | str | None]
+                  ) -> list[Path]:
+    """Refuse bad output paths before any work (see imucal.io.atomic.check_output_path: a
+    missing directory, an input, a directory, a device or FIFO, a read-only file, ...) and the
+    same file given for two outputs."""
+    from imucal.io.atomic import Transaction
 
-    ins = tuple(str(p) for p in inputs if p is not None)
-    seen: dict[Path, Path] = {}
-    checked = []
-    for out in outputs:
-        if out is None:
+    Transaction(outputs, inputs=inputs)  # checks only: nothing is locked or written
+    return [Path(o) for o in outputs if o is not None]
+
+
+def check_inputs(inputs: list[Path | str | None]) -> None:
+    """A symbolic-link loop as an input is the user's: one line, not a traceback."""
+    import errno
+    import os
+
+    for inp in inputs:
+        if inp is None:
             continue
-        if out.is_dir():
-            raise ImucalError("is a directory; expected a file name", source=str(out),
-                              field="output path")
-        check_output_path(out, ins)
-        key = out.resolve()
-        if key in seen:
-            raise ImucalError(f"the same file is given for two outputs ({seen[key]} and {out})",
-                              source=str(out), field="output path")
-        seen[key] = out
-        checked.append(out)
-    return checked
+        try:
+            os.stat(inp)
+        except OSError as e:
+            if e.errno == errno.ELOOP:
+                raise ImucalError("is a loop of symbolic links", source=str(inp)) from None
+
+
+# The fits square |g| and weigh squared parameters by lambda (method.md M2, M3): past these
+# magnitudes double precision overflows (or underflows to zero) before the first step, which
+# the fit can only report as a non-finite cost. 1e150 squared is still a finite double.
+MAGNITUDE = 1e150
+# (option, flag, smallest): a scale (|g|, counts per unit) is divided by as well; a lambda
+# as small as you like only stops weighing.
+_MAGNITUDE_OPTIONS = (("g", "--g", 1 / MAGNITUDE), ("gyro_sensitivity", "--gyro-sensitivity",
+                      1 / MAGNITUDE), ("lam", "--lambda", 0.0),
+                      ("gyro_lambda", "--gyro-lambda", 0.0), ("lambdas", "--lambdas", 0.0))
+
+
+def check_magnitudes(settings: dict) -> None:
+    """A usage error (exit 2) for a scale no fit can compute with, e.g. ``--g 1e-300``."""
+    from imucal.cli.options import usage_error
+
+    for key, flag, smallest in _MAGNITUDE_OPTIONS:
+        value = settings.get(key)
+        for v in value if isinstance(value, (tuple, list)) else (value,):
+            if v is None or v == "auto":
+                continue
+            if not smallest <= abs(float(v)) <= MAGNITUDE:
+                span = f"{smallest:g} to {MAGNITUDE:g}" if smallest else f"at most {MAGNITUDE:g}"
+                raise usage_error(f"{float(v):g} is beyond what the fit can compute with in "
+                                  f"double precision ({span})", f"'{flag}'")
 
 
 def gyro_sidecar(path: Path) -> Path:
@@ -97,6 +126,25 @@ def written_tables(path: Path, cal) -> list[str]:
         if not np.array_equal(cal.t_acc, cal.t_gyro):
             return [str(path), str(side)]
     return [str(path)]
+
+
+def write_signals(tx, path: str, signals) -> None:
+    """:func:`imucal.io.export.write_calibrated` into the transaction ``tx``: the table, and
+    its gyroscope sidecar (``cal.gyro.csv``) when the gyroscope has timestamps of its own.
+    When it has not, a sidecar left by a previous run is removed at commit: it would be read
+    as this run's gyroscope (``tx.removed`` names it)."""
+    from imucal.io.export import write_calibrated
+
+    with tx.writing(path) as tmp:
+        if Path(path).suffix.lower() != ".mat":
+            tx.expect(gyro_sidecar(Path(path)), gyro_sidecar(tmp))
+        write_calibrated(tmp, signals)
+
+
+def removed_lines(removed: list[str], signals) -> list[str]:
+    why = ("this run writes no gyroscope" if signals.gyro is None else
+           "this run's gyroscope shares the accelerometer's timestamps and is in the table")
+    return [f"removed {r} (a previous run's gyroscope table; {why})" for r in removed]
 
 
 @contextlib.contextmanager

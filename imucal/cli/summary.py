@@ -15,10 +15,12 @@ def summary_lines(rep: Report) -> list[str]:
     from imucal.report import fmt
 
     lines = [f"{line.label:16s}{line.text}" for line in rep.overview]
-    lines.append(f"{'':28s}{'before':>10s}{'after':>10s}")
+    # "held out": each still block / turn predicted by a fit that did not see it (§5)
+    lines.append(f"{'':28s}{'before':>10s}{'after':>10s}{'held out':>10s}")
     for row in rep.quality:
+        held = "" if row.held_out is None else fmt(row.held_out, '.3g')
         lines.append(f"{row.label:28s}{fmt(row.figure.before, '.3g'):>10s}"
-                     f"{fmt(row.figure.after, '.3g'):>10s}  ({row.note})")
+                     f"{fmt(row.figure.after, '.3g'):>10s}{held:>10s}  ({row.note})")
     for seg in rep.segments:
         lines.append(f"{'segment ' + str(seg.index):16s}{seg.span}")
         for fit in seg.fits:

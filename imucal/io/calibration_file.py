@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,11 +17,14 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.atomic import write_text_atomic
+from imucal.io.noise_json import noise_to_dict
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
-from imucal.stages.apply import Calibration, SegmentModels
+from imucal.stages.apply import Calibration
+from imucal.stages.noise import still_noise
 
 if TYPE_CHECKING:
     from imucal.result import Result
+    from imucal.stages.group import Grouping
     from imucal.stages.gyro import GyroFit
     from imucal.stages.quality import BeforeAfter
 
@@ -64,6 +68,21 @@ def _model_dict(model: SensorModel, std: np.ndarray, names: tuple[str, ...]) -> 
             "std": {n: _f(s) for n, s in zip(names, std)}}
 
 
+def _grouping_dict(grouping: Grouping) -> dict:
+    """How the static blocks became segments (method.md §2), with every split test's figures."""
+    return {
+        "mode": grouping.mode,
+        "split_alpha": _f(grouping.alpha),
+        "delta": _f(grouping.delta),
+        "segments": [[a, b] for a, b in grouping.segments],  # [first block, last block + 1)
+        "tests": [{"blocks": [t.start, t.end], "boundary": t.block,
+                   "boundaries_tried": t.boundaries, "change": _f(t.change), "f": _f(t.f),
+                   "dof": list(t.dof), "p_value": _f(t.p_value), "p_adjusted": _f(t.p_adjusted),
+                   "f_critical": _f(t.f_critical), "noise_ratio": _f(t.noise_ratio),
+                   "split": t.split, "reason": t.reason} for t in grouping.tests],
+    }
+
+
 def result_to_dict(result: Result) -> dict:
     """The whole calibration file as a dict (stable key order: byte-identical output)."""
     s = result.session
@@ -98,25 +117,28 @@ def result_to_dict(result: Result) -> dict:
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "conventions": CONVENTIONS,
-        "units": {"accelerometer_raw": s.acc_unit, "accelerometer": result.calibration.acc_unit,
-                  "g": _f(result.calibration.g),
-                  "gyroscope_raw": s.gyro_unit if s.has_gyro else None,
-                  "gyroscope": "rad/s" if s.has_gyro else None, "time": "s"},
+        "units": result.calibration.to_dict()["units"],
         "source": {"file": s.source, "sha256": s.sha256},
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in result.settings.to_dict().items()},
-        "grouping": result.grouping.mode,
+        "detector": _detector_dict(result),
+        "grouping": _grouping_dict(result.grouping),
         "segments": segs,
         "static_blocks": [[_f(a), _f(b)] for a, b in result.block_times],
         "lcurve": lcurve,
         "lambda": _f(result.whole.lam),
         "quality": {
-            "static_norm_rms_mg": _before_after(q.static_norm_rms_mg),
+            "static_norm_rms_mg": _before_after(q.static_norm_rms_mg) | {
+                "cross_validated": _f(q.static_norm_cv_mg)},
             "sample_norm_rms_mg": _before_after(q.sample_norm_rms_mg) | {
                 "note": "single samples: dominated by sensor noise"},
-            "gravity_angle_rms_deg": None if ga is None else _before_after(ga),
+            "gravity_angle_rms_deg": None if ga is None else _before_after(ga) | {
+                "cross_validated": _f(q.gravity_angle_cv_deg)},
             "notes": list(q.notes),
         },
+        # The sensor's noise from the still blocks (white noise density per axis; bias
+        # instability and random walk only where the blocks are long enough to show them).
+        "noise": noise_to_dict(still_noise(result.calibrated, result.block_times)),
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
     }
 
@@ -138,6 +160,24 @@ def _gyro_cv_keys(fit: GyroFit) -> dict:
                         "fold (K-fold, folds dealt in turn); null: that fit not made"}}
 
 
+def _detector_dict(result: Result) -> dict:
+    """The static detector's values, and how they were chosen (method.md §1)."""
+    det = result.detection
+    tun = det.tuning
+    out = {"window": det.window, "min_len": det.min_len, "k": _f(det.k),
+           "threshold": _f(det.threshold), "reference_level": _f(det.s2_init),
+           "initial_interval": None if det.init is None else [_f(x) for x in det.init],
+           "outliers": [int(i) for i in det.outliers]}
+    if tun is not None:
+        out |= {"tuned": list(tun.tuned), "reference": tun.reference,
+                "local_factor": _f(tun.local_factor), "quiet_level": _f(tun.quiet_level),
+                "hold_s": _f(tun.hold_s), "reason": tun.reason, "chosen": tun.chosen,
+                "candidates": [{"window": c.window, "min_len": c.min_len, "k": _f(c.k),
+                                "blocks": c.blocks, "orientations": c.orientations,
+                                "score_mg": _f(c.score_mg)} for c in tun.candidates]}
+    return out
+
+
 def save_calibration(result: Result, path: str | os.PathLike) -> None:
     """Write the calibration file atomically (temporary file, then rename)."""
     text = json.dumps(result_to_dict(result), indent=2, allow_nan=False) + "\n"
@@ -145,45 +185,67 @@ def save_calibration(result: Result, path: str | os.PathLike) -> None:
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration:
-    """Read a calibration file back into a :class:`Calibration` that can ``apply`` a session."""
+    """Read a calibration file back into a :class:`Calibration` that can ``apply`` a session.
+
+    Every parameter is checked here, so that a hand-edited or damaged file is one clear error
+    and never a calibration that silently zeroes or scrambles a signal: T finite and
+    invertible, K finite and non-zero, b finite (M2, M4); g finite and > 0; the units known;
+    the segments in time order; the format version an integer this imucal reads.
+    """
     name = str(path)
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ImucalError("file not found", source=name) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except RecursionError:
+        raise ImucalError("not a calibration file: JSON nested too deeply", source=name
+                          ) from None
+    except OSError as e:
+        raise ImucalError(f"cannot be read ({e.strerror or e.__class__.__name__})", source=name
+                          ) from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ImucalError(f"not a readable JSON calibration file ({e.__class__.__name__})",
                           source=name) from None
+    return calibration_from_dict(data, source=name)
+
+
+def calibration_to_dict(cal: Calibration) -> dict:
+    """A calibration file with the calibration alone (no run behind it): what
+    :func:`calibration_from_dict` and ``imucal apply`` read."""
+    return {"format": FORMAT, "format_version": FORMAT_VERSION, "conventions": CONVENTIONS,
+            **cal.to_dict()}
+
+
+# Upgrades of older calibration files: MIGRATIONS[n] turns a version-n dict into version n + 1.
+# A future format_version 2 adds its entry MIGRATIONS[1] here, and every version-1 file still
+# loads through it; a file newer than this imucal is refused, never guessed at.
+MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
+
+
+def migrate(data: dict, source: str = "calibration") -> dict:
+    """``data`` (a parsed calibration file) brought to :data:`FORMAT_VERSION`."""
     if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise ImucalError(f"expected format {FORMAT!r}", source=name, field="format")
-    if data.get("format_version") != FORMAT_VERSION:
-        raise ImucalError(f"format_version {data.get('format_version')!r} is not supported "
-                          f"(this imucal reads version {FORMAT_VERSION})", source=name,
-                          field="format_version")
+        raise ImucalError(f"expected format {FORMAT!r}", source=source, field="format")
+    version = data.get("format_version")
+    if type(version) is not int or not 1 <= version <= FORMAT_VERSION or (
+            version < FORMAT_VERSION and version not in MIGRATIONS):
+        # bool is an int in Python: true is not a version
+        raise ImucalError(f"format_version {version!r} is not supported (this imucal reads "
+                          f"version {FORMAT_VERSION})", source=source, field="format_version")
+    while version < FORMAT_VERSION:
+        data = MIGRATIONS[version](data)
+        version += 1
+        data["format_version"] = version
+    return data
+
+
+def calibration_from_dict(data: dict, source: str = "calibration") -> Calibration:
+    """The :class:`Calibration` in a parsed calibration file, migrated to this format version
+    and checked parameter by parameter (:meth:`Calibration.from_dict`)."""
+    data = migrate(data, source)
     try:
-        units = data["units"]
-        segments = []
-        for i, seg in enumerate(data["segments"]):
-            acc = _model(seg["accelerometer"])
-            gyro = _model(seg["gyroscope"]) if seg.get("gyroscope") else None
-            segments.append(SegmentModels(t_start=float(seg["t_start"]),
-                                          t_end=float(seg["t_end"]), acc=acc, gyro=gyro))
-            del i
-        if not segments:
-            raise ValueError("no segments")
-        return Calibration(segments=tuple(segments), acc_unit_raw=units["accelerometer_raw"],
-                           acc_unit=units["accelerometer"], g=float(units["g"]),
-                           gyro_unit_raw=units.get("gyroscope_raw"))
-    except (KeyError, TypeError, ValueError, IndexError) as e:
-        raise ImucalError(f"malformed calibration ({e.__class__.__name__}: {e})", source=name,
-                          field="segments") from None
+        return Calibration.from_dict(data)
+    except ImucalError as e:
+        raise ImucalError(e.problem, source=source, field=e.field) from None
 
 
-def _model(d: dict) -> SensorModel:
-    T = np.array(d["T"], dtype=float)
-    K = np.array(d["K"], dtype=float)
-    b = np.array(d["b"], dtype=float)
-    if T.shape != (3, 3) or K.shape != (3,) or b.shape != (3,) or not (
-            np.all(np.isfinite(T)) and np.all(np.isfinite(K)) and np.all(np.isfinite(b))):
-        raise ValueError("T must be 3x3, K and b 3 finite numbers")
-    return SensorModel(T=T, K=K, b=b)

@@ -7,31 +7,32 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_T, acc_theta
+from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_theta
 from imucal.numerics.lcurve import lcurve_corner
-from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov
+from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov, sandwich_cov
 from imucal.numerics.windows import block_means, segment_sums
 from imucal.settings import AccSettings, Settings
+from imucal.stages.accel_points import (
+    BlockNoise,
+    FitPoints,
+    block_scatter,
+    excess_variance,
+    jacobian,
+    ml_points,
+    residuals,
+    select_points,
+)
+from imucal.stages.accel_start import (
+    Nominal,
+    ellipsoid_start,
+    make_nominal,
+    sphere_fit,
+    to_raw_model,
+)
 from imucal.warning import RunWarning
 
 TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
-
-
-@dataclass(frozen=True)
-class Nominal:
-    """The frame the fit runs in: ``a_n = (a_raw - offset) / scale`` has norm about 1.
-
-    The Tikhonov prior ``theta_0`` (identity) means "the sensor is nominal"; in g or m/s^2
-    that is the raw signal itself, in raw counts there is no nominal, so an isotropic sphere
-    fit of the still points stands in for the datasheet's offset and sensitivity.
-    """
-
-    offset: np.ndarray
-    scale: float
-    how: str
-
-    def to_nominal(self, raw: np.ndarray) -> np.ndarray:
-        return (raw - self.offset) / self.scale
+EXCESS_ROUNDS = 3  # renewals of the ML weights with the excess variance tau^2
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,7 @@ class AccFit:
     n_blocks: int
     sweep: LambdaSweep | None = None  # the L-curve's solutions in raw units (None: fixed lambda)
     warnings: list[RunWarning] = field(default_factory=list)
+    points: FitPoints | None = None  # the data fitted: weights, targets, noise model (M3)
 
     def model_for(self, theta_nominal: np.ndarray) -> SensorModel:
         """The raw-unit model of a nominal-frame solution (an L-curve point, an LM step)."""
@@ -85,138 +87,17 @@ class AccFit:
         return np.linalg.norm(self.nominal.to_nominal(acc_raw), axis=1) * self.g_out
 
 
-def to_raw_model(theta: np.ndarray, nominal: Nominal, g_out: float) -> SensorModel:
-    """Back to raw units: ``a = g_out T K_n ((a_raw - c0)/s0 - b_n) = T K (a_raw - b)`` with
-    ``K = K_n g_out / s0`` and ``b = c0 + s0 b_n``."""
-    return SensorModel(T=acc_T(theta), K=theta[3:6] * (g_out / nominal.scale),
-                       b=nominal.offset + nominal.scale * theta[6:9])
+def _fit(data: FitPoints, lam: float, start: np.ndarray, name: str) -> FitReport:
+    return fit_tikhonov(data.residuals, data.jacobian, start, ACC_THETA0, lam, start_name=name)
 
 
-def select_points(acc: np.ndarray, blocks: np.ndarray, mode: str = "thesis", n_select: int = 99,
-                  n_group: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """Low-noise fit points from each static block (thesis §3.2), vectorised over blocks.
-
-    Returns the points (P, 3) and the index of the block each came from (P,). Averaging before
-    the fit also shrinks the noise bias of the norm, ``E|a+n| ~ |a| + sigma^2/|a|`` (§3).
-    """
-    if len(blocks) == 0:
-        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    starts, ends = blocks[:, 0], blocks[:, 1]
-    lengths = ends - starts
-    if mode == "mean":
-        pts = segment_sums(acc, starts, ends) / lengths[:, None]
-        return pts, np.arange(len(blocks))
-    if mode == "thesis":
-        # n_select samples evenly spread over each block, then averaged in groups of n_group.
-        frac = np.linspace(0.0, 1.0, n_select)
-        idx = starts[:, None] + np.floor(frac[None, :] * (lengths[:, None] - 1)).astype(np.int64)
-        samples = acc[idx]  # (B, n_select, 3)
-        groups = np.array_split(np.arange(n_select), int(np.ceil(n_select / n_group)))
-        pts = np.stack([samples[:, g].mean(axis=1) for g in groups], axis=1)  # (B, G, 3)
-    elif mode == "chunks":
-        n_chunks = n_group
-        edges = starts[:, None] + (np.arange(n_chunks + 1)[None, :] * lengths[:, None]) // n_chunks
-        sums = segment_sums(acc, edges[:, :-1].ravel(), edges[:, 1:].ravel()).reshape(
-            len(blocks), n_chunks, 3)
-        counts = (edges[:, 1:] - edges[:, :-1])[..., None]
-        pts = np.where(counts > 0, sums / np.maximum(counts, 1), acc[0])
-    else:
-        raise ImucalError(f"unknown point selection {mode!r}; expected thesis, chunks or mean",
-                          source="settings", field="points")
-    g = pts.shape[1]
-    return pts.reshape(-1, 3), np.repeat(np.arange(len(blocks)), g)
-
-
-def residuals(theta: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Data part of M3: ``r_i = 1 - |T K (a_i - b)|`` in the nominal frame (|g| = 1)."""
-    y = (pts - theta[6:9]) * theta[3:6] @ acc_T(theta).T
-    return 1.0 - np.sqrt(np.einsum("ij,ij->i", y, y))
-
-
-def jacobian(theta: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Analytic d r / d theta of :func:`residuals` (r = 1 - |y|, y = T K (a - b))."""
-    T = acc_T(theta)
-    K = theta[3:6]
-    v = pts - theta[6:9]
-    u = v * K
-    y = u @ T.T
-    yh = y / np.linalg.norm(y, axis=1, keepdims=True)
-    J = np.empty((len(pts), 9))
-    J[:, 0] = yh[:, 0] * u[:, 1]  # dy/da_yz = (-u_y, 0, 0), dr = -yh . dy
-    J[:, 1] = -yh[:, 0] * u[:, 2]  # dy/da_zy = (u_z, 0, 0)
-    J[:, 2] = yh[:, 1] * u[:, 2]  # dy/da_zx = (0, -u_z, 0)
-    yT = yh @ T  # yT[:, j] = yh . T[:, j]
-    J[:, 3:6] = -yT * v  # dy/ds_j = T[:, j] v_j
-    J[:, 6:9] = yT * K  # dy/db_j = -T[:, j] s_j
-    return J
-
-
-def sphere_fit(pts: np.ndarray) -> tuple[np.ndarray, float]:
-    """Closed-form least-squares sphere: |p - c|^2 = r^2 is linear in (c, r^2 - |c|^2)."""
-    A = np.hstack([2 * pts, np.ones((len(pts), 1))])
-    rhs = np.einsum("ij,ij->i", pts, pts)
-    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
-    c = sol[:3]
-    r2 = sol[3] + c @ c
-    return c, float(np.sqrt(r2)) if r2 > 0 else float("nan")
-
-
-def ellipsoid_start(pts: np.ndarray) -> np.ndarray | None:
-    """Closed-form start for M2: a linear ellipsoid fit of the still points (nominal frame).
-
-    Fits the quadric ``x'Ax + d'x + e = 0`` by the smallest singular vector of its design
-    matrix, reads the centre ``b = -A^-1 d / 2`` and ``M = A / (b'Ab - e)`` so that
-    ``(x-b)' M (x-b) = 1``. Since ``M = (TK)'(TK)`` with ``TK`` upper triangular with a positive
-    diagonal, ``TK`` is the transposed Cholesky factor of ``M`` and gives T, K directly.
-    Returns ``None`` where the points do not determine an ellipsoid (too few orientations).
-    """
-    if len(pts) < 9:
-        return None
-    mu = pts.mean(axis=0)
-    sc = float(np.std(pts - mu)) or 1.0
-    x, y, z = ((pts - mu) / sc).T
-    D = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z,
-                         np.ones_like(x)])
-    _, s, vt = np.linalg.svd(D, full_matrices=False)
-    if s[-1] > 1e-6 * s[0] and s[-2] < 1e-9 * s[0]:
-        return None
-    if s[-2] < 1e-8 * s[0]:  # a family of quadrics fits: the poses do not span enough directions
-        return None
-    p = vt[-1]
-    A = np.array([[p[0], p[3], p[4]], [p[3], p[1], p[5]], [p[4], p[5], p[2]]])
-    d = p[6:9]
-    e = p[9]
-    try:
-        c = -0.5 * np.linalg.solve(A, d)
-    except np.linalg.LinAlgError:
-        return None
-    k = c @ A @ c - e
-    if k == 0:
-        return None
-    M = A / k
-    try:
-        L = np.linalg.cholesky(M)  # M = L L', so TK = L' (scaled back below)
-    except np.linalg.LinAlgError:
-        return None
-    U = L.T / sc
-    b = mu + sc * c
-    s_x, s_y, s_z = U[0, 0], U[1, 1], U[2, 2]
-    theta = np.array([-U[0, 1] / s_y, U[0, 2] / s_z, -U[1, 2] / s_z, s_x, s_y, s_z, *b])
-    return theta if np.all(np.isfinite(theta)) else None
-
-
-def _fit(pts: np.ndarray, lam: float, start: np.ndarray, name: str) -> FitReport:
-    return fit_tikhonov(lambda th: residuals(th, pts), lambda th: jacobian(th, pts), start,
-                        ACC_THETA0, lam, start_name=name)
-
-
-def best_fit(pts: np.ndarray, lam: float, starts: dict[str, np.ndarray]
+def best_fit(data: FitPoints, lam: float, starts: dict[str, np.ndarray]
              ) -> tuple[FitReport, dict[str, float]]:
     """Run LM from every start; keep the lowest regularised cost (the thesis's local minima)."""
     reports = {}
     for name, th in starts.items():
         try:
-            reports[name] = _fit(pts, lam, th, name)
+            reports[name] = _fit(data, lam, th, name)
         except FloatingPointError:
             continue
     if not reports:
@@ -231,18 +112,6 @@ def best_fit(pts: np.ndarray, lam: float, starts: dict[str, np.ndarray]
     return best, {k: r.cost for k, r in reports.items()}
 
 
-def make_nominal(pts: np.ndarray, acc_unit: str, g_in: float) -> Nominal:
-    """The nominal frame of the fit (see :class:`Nominal`); ``g_in`` is |g| in input units."""
-    if acc_unit == "counts":
-        c, r = sphere_fit(pts)
-        if not np.isfinite(r) or r <= 0:
-            raise ImucalError("cannot find a nominal offset and sensitivity for raw counts: the "
-                              "still poses do not span enough directions",
-                              source="accelerometer", field="static blocks")
-        return Nominal(offset=c, scale=r, how="sphere fit of the still points (raw counts)")
-    return Nominal(offset=np.zeros(3), scale=g_in, how=f"input unit {acc_unit}, |g| = {g_in:g}")
-
-
 def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: str, g_in: float,
                             g_out: float, settings: AccSettings = Settings().acc,
                             nominal: Nominal | None = None) -> AccFit:
@@ -251,11 +120,20 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     ``g_in`` is |g| in the raw signal's units (1 for g, 9.80665 for m/s^2; unused for counts)
     and ``g_out`` the norm the calibrated still samples must have.
     """
-    pts_raw, _ = select_points(acc, blocks, settings.points, settings.n_select, settings.n_group)
+    noise = None
+    if settings.points == "ml" and len(blocks):
+        pts_raw, noise = block_scatter(acc, blocks)
+    else:
+        pts_raw, _ = select_points(acc, blocks, settings.points, settings.n_select,
+                                   settings.n_group)
     if len(pts_raw) < 9:
         raise ImucalError(f"only {len(blocks)} static blocks ({len(pts_raw)} fit points); the "
                           "9-parameter accelerometer model needs at least 9 points from several "
                           "orientations", source="accelerometer", field="static blocks")
+    if settings.lam != "auto":
+        if not np.isfinite(float(settings.lam)) or float(settings.lam) < 0:
+            raise ImucalError(f"lambda must be 'auto' or a number >= 0, got {settings.lam!r}",
+                              source="settings", field="lambda")
     nominal = nominal or make_nominal(pts_raw, acc_unit, g_in)
     pts = nominal.to_nominal(pts_raw)
 
@@ -263,53 +141,117 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     ell = ellipsoid_start(pts)
     if ell is not None and np.all(ell[3:6] > 0):
         starts["ellipsoid"] = ell
-    warnings: list[RunWarning] = []
-
-    curve = None
-    if settings.lam == "auto":
-        curve, (report, start_costs) = _lcurve(pts, np.asarray(settings.lambdas, float), starts)
-        lam = float(curve.lambdas[curve.corner])
+    if noise is None:
+        data = FitPoints.plain(pts)
+        curve, report, start_costs = _solve(data, settings, starts)
     else:
-        lam = float(settings.lam)
-        if not np.isfinite(lam) or lam < 0:
-            raise ImucalError(f"lambda must be 'auto' or a number >= 0, got {settings.lam!r}",
-                              source="settings", field="lambda")
-        report, start_costs = best_fit(pts, lam, starts)
+        noise = BlockNoise(n=noise.n, var=noise.var / nominal.scale**2)
+        data, curve, report, start_costs = _solve_ml(pts, noise, settings, starts)
 
-    warnings += _sanity(report, pts, pts_raw, nominal)
+    warnings = _sanity(report, pts, pts_raw, nominal)
     theta = report.theta
     model = to_raw_model(theta, nominal, g_out)
     k_scale = g_out / nominal.scale  # standard errors scale as the parameters do
     d = np.r_[np.ones(3), np.full(3, k_scale), np.full(3, nominal.scale)]
-    cov = report.cov * np.outer(d, d)
+    cov = _cov_nominal(report, data) * np.outer(d, d)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     sweep = None if curve is None else lambda_sweep(curve, nominal, g_out,
                                                     block_means(acc, blocks))
     return AccFit(model=model, std=std, cov=cov, theta_nominal=theta, nominal=nominal, g_out=g_out,
-                  lam=lam, report=report, starts=start_costs, lcurve=curve,
-                  n_points=len(pts), n_blocks=len(blocks), sweep=sweep, warnings=warnings)
+                  lam=report.lam, report=report, starts=start_costs, lcurve=curve,
+                  n_points=len(pts), n_blocks=len(blocks), sweep=sweep, warnings=warnings,
+                  points=data)
 
 
-def _lcurve(pts: np.ndarray, lambdas: np.ndarray, starts: dict[str, np.ndarray]
+def _cov_nominal(report: FitReport, data: FitPoints) -> np.ndarray:
+    """Covariance of the nominal-frame parameters, from the weighted Jacobian (sandwich form).
+
+    The "ml" data know the variance of each weighted residual, ``w_k^2 (v_k + tau^2)`` (the
+    same for every block, see :func:`ml_points`), from the blocks' own scatter of thousands of
+    samples; the fit's residuals estimate it from ``B - 9`` degrees of freedom (a 30-block fit
+    gives it to +-30 %, its standard errors to +-15 %). Where the residuals scatter more
+    than white noise, ``tau^2`` has already taken that up; where they scatter less, the noise
+    model's larger value is kept. Other point modes have no noise model: the fit's own
+    estimate.
+    """
+    if data.white_var is None:
+        return report.cov
+    s2 = float(np.mean(data.weight**2 * (data.white_var + data.excess_var)))
+    cov, _ = sandwich_cov(report.jac, report.lam, s2)
+    return cov
+
+
+def _solve(data: FitPoints, settings: AccSettings, starts: dict[str, np.ndarray]
+           ) -> tuple[LCurve | None, FitReport, dict[str, float]]:
+    """M3 on ``data`` at the L-curve's corner or at the fixed lambda."""
+    if settings.lam == "auto":
+        curve, (report, costs) = _lcurve(data, np.asarray(settings.lambdas, float), starts)
+        return curve, report, costs
+    report, costs = best_fit(data, float(settings.lam), starts)
+    return None, report, costs
+
+
+def _solve_ml(pts: np.ndarray, noise: BlockNoise, settings: AccSettings,
+              starts: dict[str, np.ndarray]
+              ) -> tuple[FitPoints, LCurve | None, FitReport, dict[str, float]]:
+    """The ML fit (:func:`~imucal.stages.accel_points.ml_points`), its weights from the data.
+
+    First with white-noise weights (``sqrt(n_k)``), their reference the closed-form start.
+    Where the fit's residuals scatter more between blocks than white noise explains, the
+    common excess ``tau^2`` is estimated (:func:`excess_variance`) and the weights renewed
+    with it, their reference now the fit itself, and the fit repeated at the chosen lambda,
+    until ``tau^2`` settles (a few rounds); the L-curve is then run once more on the final
+    weights, so the curve, lambda and solution recorded are those of the data fitted.
+    """
+    data = ml_points(pts, noise, starts.get("ellipsoid", ACC_THETA0))
+    first = data
+    curve, report, costs = _solve(data, settings, starts)
+    for _ in range(EXCESS_ROUNDS):
+        r = residuals(report.theta, pts, data.target)
+        tau2 = excess_variance(r, data.white_var, _dof(report))
+        if abs(tau2 - data.excess_var) <= 0.05 * max(tau2, data.excess_var):
+            break
+        data = ml_points(pts, noise, report.theta, tau2)
+        report, costs = best_fit(data, report.lam,
+                                 {**starts, f"{report.start_name}, reweighted": report.theta})
+    if data is not first and settings.lam == "auto":
+        curve, report, costs = _solve(data, settings, starts)
+    return data, curve, report, costs
+
+
+def _dof(report: FitReport) -> float:
+    """Residual degrees of freedom of a regularised fit: points minus the effective number of
+    parameters, ``tr((J'J + lambda I)^-1 J'J)`` (9 at lambda = 0)."""
+    J = report.jac
+    JtJ = J.T @ J
+    try:
+        p_eff = float(np.trace(np.linalg.solve(JtJ + report.lam * np.eye(len(JtJ)), JtJ)))
+    except np.linalg.LinAlgError:
+        p_eff = float(J.shape[1])
+    return J.shape[0] - p_eff
+
+
+def _lcurve(data: FitPoints, lambdas: np.ndarray, starts: dict[str, np.ndarray]
             ) -> tuple[LCurve, tuple[FitReport, dict[str, float]]]:
     """Solve on the lambda grid, record (rho, eta), pick the corner (thesis ch. 5).
 
     Every start is tried at the smallest lambda; each larger lambda then starts from the
     previous solution (continuation), which follows one branch of minima along the curve and
     costs one LM run per grid point. At the corner every start is tried again, so the
-    solution returned is the best one found for the chosen lambda.
+    solution returned is the best one found for the chosen lambda. ``rho`` is the norm of the
+    weighted data residuals, the part of the cost the fit minimises besides the prior.
     """
     lambdas = np.sort(lambdas)
-    first, _ = best_fit(pts, float(lambdas[0]), starts)
+    first, _ = best_fit(data, float(lambdas[0]), starts)
     fits = [first]
     for lam in lambdas[1:]:
-        fits.append(_fit(pts, float(lam), fits[-1].theta, fits[-1].start_name))
+        fits.append(_fit(data, float(lam), fits[-1].theta, fits[-1].start_name))
     rho = np.array([f.residual_norm for f in fits])
     eta = np.array([f.solution_norm(ACC_THETA0) for f in fits])
     corner, curv = lcurve_corner(lambdas, rho, eta)
     curve = LCurve(lambdas=lambdas, residual_norm=rho, solution_norm=eta,
                    thetas=np.array([f.theta for f in fits]), corner=corner, curvature=curv)
-    return curve, best_fit(pts, float(lambdas[corner]),
+    return curve, best_fit(data, float(lambdas[corner]),
                            {**starts, f"{fits[corner].start_name}, continued along the L-curve":
                             fits[corner].theta})
 
@@ -430,3 +372,11 @@ def lambda_sweep(curve: LCurve, nominal: Nominal, g_out: float, means_raw: np.nd
         errors[i] = (np.linalg.norm(a, axis=1) / g_out - 1.0) * 1e3
     return LambdaSweep(params=raw_params(curve.thetas, nominal, g_out),
                        block_norm_error_mg=errors)
+
+
+# The stage's interface; jacobian, residuals and select_points (accel_points.py) are re-exported
+# for the grouping (group.py) and the pipeline.
+__all__ = ["AccFit", "FitPoints", "LCurve", "LambdaSweep", "Nominal", "best_fit", "block_mean_cov",
+           "calibrate_accelerometer", "ellipsoid_start", "jacobian", "lambda_sweep", "make_nominal",
+           "output_sensitivity", "residuals", "select_points", "sphere_fit", "to_raw_model",
+           "undetermined"]

@@ -8,7 +8,9 @@ so a one-segment calibration applies to any later recording of the same device.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -43,6 +45,57 @@ class Calibration:
             raise ImucalError(f"the calibration was fitted on a gyroscope in "
                               f"{self.gyro_unit_raw}, this session is in {session.gyro_unit}",
                               source=session.source, field="gyroscope unit")
+
+    def to_dict(self) -> dict:
+        """What applying this calibration needs, as plain JSON values: the units and each
+        segment's models (M2, M4). :meth:`from_dict` reads it back exactly."""
+        return {
+            "units": {"accelerometer_raw": self.acc_unit_raw, "accelerometer": self.acc_unit,
+                      "g": float(self.g), "gyroscope_raw": self.gyro_unit_raw,
+                      "gyroscope": "rad/s" if self.gyro_unit_raw else None, "time": "s"},
+            "segments": [{"t_start": float(seg.t_start), "t_end": float(seg.t_end),
+                          "accelerometer": model_dict(seg.acc),
+                          "gyroscope": None if seg.gyro is None else model_dict(seg.gyro)}
+                         for seg in self.segments],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Calibration:
+        """The inverse of :meth:`to_dict` (extra keys, such as a calibration file's standard
+        errors and quality figures, are ignored). Every parameter is checked, so that a
+        hand-edited or damaged calibration is one clear error and never one that silently
+        zeroes or scrambles a signal: T finite and invertible, K finite and non-zero, b finite
+        (M2, M4); g finite and > 0; the units known; the segments in time order. Raises
+        :class:`ImucalError` naming the field."""
+        field = "units"
+        try:
+            units = data["units"]
+            raw = _unit(units, "accelerometer_raw", ACC_UNITS_RAW)
+            out = _unit(units, "accelerometer", ACC_UNITS)
+            gyro_raw = _unit(units, "gyroscope_raw", GYRO_UNITS_RAW, optional=True)
+            field = "units.g"
+            g = _number(units["g"], "g")
+            if not g > 0:
+                raise ValueError(f"g must be > 0, got {g:g}")
+            segments: list[SegmentModels] = []
+            for i, seg in enumerate(data["segments"]):
+                field = f"segments[{i}]"
+                t0, t1 = _number(seg["t_start"], "t_start"), _number(seg["t_end"], "t_end")
+                if t1 < t0 or (segments and t0 < segments[-1].t_end):
+                    raise ValueError("the segments' t_start and t_end are not in time order")
+                field = f"segments[{i}].accelerometer"
+                acc = _model(seg["accelerometer"])
+                field = f"segments[{i}].gyroscope"
+                gyro = _model(seg["gyroscope"]) if seg.get("gyroscope") else None
+                segments.append(SegmentModels(t_start=t0, t_end=t1, acc=acc, gyro=gyro))
+            if not segments:
+                field = "segments"
+                raise ValueError("no segments")
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
+            what = f"missing {e}" if isinstance(e, KeyError) else str(e)
+            raise ImucalError(f"malformed calibration: {what}", field=field) from None
+        return cls(segments=tuple(segments), acc_unit_raw=raw, acc_unit=out, g=g,
+                   gyro_unit_raw=gyro_raw)
 
     def apply(self, session: Session) -> CalibratedSignals:
         self.check_units(session)
@@ -113,3 +166,59 @@ def _apply_into(model: SensorModel, raw: np.ndarray, out: np.ndarray) -> None:
         d = tmp[:hi - lo]
         np.subtract(raw[lo:hi], model.b, out=d)
         np.matmul(d, M, out=out[lo:hi])
+
+
+ACC_UNITS_RAW = ("g", "m/s^2", "counts")
+ACC_UNITS = ("g", "m/s^2")
+GYRO_UNITS_RAW = ("rad/s", "deg/s", "counts")
+
+
+def model_dict(model: SensorModel) -> dict:
+    """One sensor's T, K, b (M2, M4) as JSON lists."""
+    return {"T": np.asarray(model.T, float).tolist(), "K": np.asarray(model.K, float).tolist(),
+            "b": np.asarray(model.b, float).tolist()}
+
+
+def _unit(units: dict, key: str, known: tuple[str, ...], optional: bool = False) -> str | None:
+    value = units.get(key) if optional else units[key]
+    if (value is None and optional) or value in known:
+        return value
+    raise ValueError(f"{key} {value!r} is not one of {', '.join(known)}")
+
+
+def _number(x: Any, what: str) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise ValueError(f"{what} must be a number, got {x!r}")
+    v = float(x)
+    if not math.isfinite(v):
+        raise ValueError(f"{what} must be finite, got {v!r}")
+    return v
+
+
+def _model(d: dict) -> SensorModel:
+    """One sensor's T, K, b (M2, M4), refused unless the model is a bijection with finite
+    numbers: a singular T or a zero scale would map every sample onto a plane or a line."""
+    arrays = {}
+    for key, shape in (("T", (3, 3)), ("K", (3,)), ("b", (3,))):
+        raw = d[key]
+        if _has_bool(raw):
+            raise ValueError(f"{key} must hold numbers, not true/false")
+        a = np.array(raw, dtype=float)
+        if a.shape != shape:
+            raise ValueError(f"{key} must be {'3x3' if key == 'T' else '3 numbers'}, got shape "
+                             f"{a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{key} must be finite numbers (null is not a number)")
+        arrays[key] = a
+    if np.any(arrays["K"] == 0):
+        raise ValueError("a scale factor in K is zero")
+    cond = np.linalg.cond(arrays["T"])
+    if not cond < 1e12:  # beyond: T's inverse loses more than 12 of double's 16 digits
+        raise ValueError(f"T is singular (condition number {cond:.3g})")
+    return SensorModel(T=arrays["T"], K=arrays["K"], b=arrays["b"])
+
+
+def _has_bool(x: Any) -> bool:
+    if isinstance(x, list):
+        return any(_has_bool(v) for v in x)
+    return isinstance(x, bool)

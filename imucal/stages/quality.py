@@ -31,6 +31,10 @@ class Quality:
     static_norm_rms_mg: BeforeAfter  # block means: the calibration's own error
     sample_norm_rms_mg: BeforeAfter  # single samples: dominated by sensor noise
     gravity_angle_rms_deg: BeforeAfter | None  # None without a gyroscope
+    # The same two figures out of sample (method.md §5): each still block, and each turn,
+    # predicted by a fit that did not see it. NaN where too few blocks or turns to hold out.
+    static_norm_cv_mg: float
+    gravity_angle_cv_deg: float | None  # None without a gyroscope
     block_norm_error_mg: np.ndarray  # (B,) after, per block
     block_norm_error_before_mg: np.ndarray | None
     notes: tuple[str, ...]
@@ -41,7 +45,10 @@ def _rms(x: np.ndarray) -> float:
 
 
 def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
-                    gyro_fits: list[GyroFit], g_in: float, g_out: float) -> Quality:
+                    gyro_fits: list[GyroFit], held_out_mg: np.ndarray, g_in: float,
+                    g_out: float) -> Quality:
+    """The figures of method.md §5; ``held_out_mg`` (B,) is each still block's norm error
+    predicted by the accelerometer fit without it (:mod:`imucal.stages.accel_cv`)."""
     notes = []
     after_blocks = (np.linalg.norm(block_means(cal.acc, det.blocks), axis=1) / g_out - 1) * 1e3
     after_samples = _block_samples_norm_rms(cal.acc, g_out, det.blocks)
@@ -53,7 +60,7 @@ def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
         before_blocks = (np.linalg.norm(det.means, axis=1) / g_in - 1) * 1e3
         before_samples = _block_samples_norm_rms(session.acc, g_in, det.blocks)
 
-    angle = None
+    angle = angle_cv = None
     if gyro_fits:
         # Transitions through saturated samples are predicted wrong by any calibration:
         # they are left out of the fit and of its figure (and shown in the recording).
@@ -67,11 +74,14 @@ def quality_figures(session: Session, det: Detection, cal: CalibratedSignals,
             notes.append("gyroscope in raw counts with no nominal sensitivity given: no 'before' "
                          "gravity prediction error")
         angle = BeforeAfter(before, _rms(after))
+        held = np.concatenate([g.cv.angle[~g.excluded] for g in gyro_fits])
+        angle_cv = _rms(held) if np.all(np.isfinite(held)) else float("nan")
     return Quality(
         static_norm_rms_mg=BeforeAfter(None if before_blocks is None else _rms(before_blocks),
                                        _rms(after_blocks)),
         sample_norm_rms_mg=BeforeAfter(before_samples, after_samples),
-        gravity_angle_rms_deg=angle, block_norm_error_mg=after_blocks,
+        gravity_angle_rms_deg=angle, static_norm_cv_mg=_rms(held_out_mg),
+        gravity_angle_cv_deg=angle_cv, block_norm_error_mg=after_blocks,
         block_norm_error_before_mg=before_blocks, notes=tuple(notes))
 
 

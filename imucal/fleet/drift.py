@@ -1,0 +1,296 @@
+"""How calibrations move: each parameter of one device over time (:func:`device_drift`), and
+each parameter across the fleet, newest calibration per device, with the units that stand out
+flagged by a robust z-score (:func:`fleet_report`).
+
+The parameters are those of the store's index (:mod:`imucal.fleet.index`): the first
+segment's accelerometer (method.md M2: misalignment a_yz, a_zy, a_zx; scale s; bias b in the
+raw unit) and gyroscope (M4: six misalignment angles, scale, bias b_g in the raw unit).
+
+Robust z (Iglewicz and Hoaglin's modified z-score): ``z = 0.6745 (x - median) / MAD``, MAD the
+median absolute deviation from the median; 0.6745 makes it comparable to a standard score for
+normal data, and a unit is flagged when ``|z| > 3.5``. A median and MAD are not moved by the
+outliers they are meant to find, where a mean and standard deviation would be (one unit at 120
+mg among ten at 5 mg inflates the standard deviation until it hides itself). When more than
+half the fleet has the same value (MAD = 0) the mean absolute deviation stands in
+(``z = (x - median) / (1.2533 mean|x - median|)``), and the report says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+
+from imucal.fleet.index import GYRO_NAMES, iso
+from imucal.fleet.store import format_table, newest
+from imucal.models import ACC_PARAM_NAMES
+
+Z_LIMIT = 3.5
+MIN_DEVICES = 3  # a median and a MAD of fewer say nothing about what is usual
+_MAD_TO_Z = 0.6745  # the MAD of a standard normal: z = 0.6745 (x - median) / MAD
+_MEANAD_TO_SIGMA = 1.253314  # sqrt(pi / 2): mean absolute deviation -> sigma, normal data
+_DAY = 86400.0
+
+
+@dataclass(frozen=True)
+class Param:
+    column: str  # the index's column, e.g. acc_b_x
+    sensor: str  # accelerometer | gyroscope
+    group: str  # misalignment | scale | bias
+    name: str  # b_x
+
+    @property
+    def label(self) -> str:
+        return f"{self.sensor} {self.name}"
+
+    def unit(self, row: dict[str, Any]) -> str | None:
+        """The parameter's unit in a calibration (None: that calibration has no such fit)."""
+        raw = row["acc_unit_raw" if self.sensor == "accelerometer" else "gyro_unit_raw"]
+        if raw is None:
+            return None
+        if self.group == "misalignment":
+            return "rad"
+        if self.group == "scale":
+            return "1" if raw in ("g", "m/s^2", "rad/s") else f"per {raw[:-1]}"
+        return raw
+
+
+def _group(name: str) -> str:
+    return "bias" if name.startswith("b_") else "scale" if name.startswith("s_") else (
+        "misalignment")
+
+
+PARAMS: tuple[Param, ...] = (
+    *(Param(f"acc_{n}", "accelerometer", _group(n), n) for n in ACC_PARAM_NAMES),
+    *(Param(f"gyro_{n}", "gyroscope", _group(n), n) for n in GYRO_NAMES))
+
+
+def _value(row: dict[str, Any], column: str) -> float:
+    v = row.get(column)
+    return np.nan if v is None else float(v)
+
+
+# --- one device over time ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ParamDrift:
+    param: Param
+    unit: str
+    values: np.ndarray  # one per calibration, oldest first (NaN: not fitted, or another unit)
+    stds: np.ndarray  # the fit's standard errors (NaN where unknown)
+    per_30d: float  # least-squares slope over calibrated_at, per 30 days (NaN: < 2 times)
+
+    @property
+    def _ends(self) -> tuple[int, int] | None:
+        ok = np.flatnonzero(np.isfinite(self.values))
+        return (int(ok[0]), int(ok[-1])) if len(ok) else None
+
+    @property
+    def change(self) -> float:
+        """Last minus first."""
+        ends = self._ends
+        return np.nan if ends is None else float(self.values[ends[1]] - self.values[ends[0]])
+
+    @property
+    def change_sigma(self) -> float:
+        """The change over its standard error (both fits' errors): |.| > 3 is a real move."""
+        ends = self._ends
+        if ends is None or ends[0] == ends[1]:
+            return np.nan
+        err = float(np.hypot(self.stds[ends[0]], self.stds[ends[1]]))
+        return self.change / err if err > 0 else np.nan
+
+
+@dataclass(frozen=True)
+class DeviceDrift:
+    device: str
+    times: list[datetime]  # calibrated_at, oldest first
+    paths: list[str]  # relative to the store
+    params: list[ParamDrift]
+    quality: dict[str, np.ndarray]  # static_norm_rms_mg_after, ..._cv, gravity_angle_...
+    notes: list[str] = field(default_factory=list)
+
+
+QUALITY = ("static_norm_rms_mg_after", "static_norm_rms_mg_cv", "gravity_angle_rms_deg_after",
+           "gravity_angle_rms_deg_cv")
+
+
+def device_drift(device: str, rows: list[dict[str, Any]]) -> DeviceDrift:
+    """The drift of ``device`` from its calibrations (index rows, any order)."""
+    rows = sorted(rows, key=lambda r: (r["calibrated_at"], r["seq"]))
+    times = [r["calibrated_at"] for r in rows]
+    days = np.array([(t - times[0]).total_seconds() / _DAY for t in times])
+    params, notes = [], []
+    for p in PARAMS:
+        units = [p.unit(r) for r in rows]
+        unit = units[-1] if units[-1] is not None else next(
+            (u for u in reversed(units) if u is not None), None)
+        if unit is None:
+            continue  # never fitted (an accelerometer-only device's gyroscope)
+        same = np.array([u == unit for u in units])
+        if not same.all() and any(u is not None for u, s in zip(units, same) if not s):
+            notes.append(f"{p.label}: {np.count_nonzero(~same)} calibrations in another unit "
+                         f"than the newest ({unit}) left out")
+        std_col = p.column.replace("_", "_std_", 1)
+        values = np.where(same, [_value(r, p.column) for r in rows], np.nan)
+        stds = np.where(same, [_value(r, std_col) for r in rows], np.nan)
+        params.append(ParamDrift(p, unit, values, stds, _slope(days, values) * 30.0))
+    quality = {q: np.array([_value(r, q) for r in rows]) for q in QUALITY}
+    return DeviceDrift(device, times, [r["path"] for r in rows], params, quality, notes)
+
+
+def _slope(days: np.ndarray, values: np.ndarray) -> float:
+    """Least-squares slope per day (NaN with fewer than two distinct times)."""
+    ok = np.isfinite(values)
+    t, v = days[ok], values[ok]
+    if len(t) < 2 or np.ptp(t) == 0:
+        return np.nan
+    tc = t - t.mean()
+    return float(tc @ (v - v.mean()) / (tc @ tc))
+
+
+def _g(x: float, fmt: str = ".6g") -> str:
+    return "-" if not np.isfinite(x) else format(x, fmt)
+
+
+def drift_lines(d: DeviceDrift) -> list[str]:
+    """One device's drift as text: a row per parameter, a column per calibration."""
+    span = (d.times[-1] - d.times[0]).total_seconds() / _DAY
+    stamps = [iso(t) for t in d.times]
+    cut = 10 if len({s[:10] for s in stamps}) == len(stamps) else 16
+    head = [f"{d.device}: {len(d.times)} calibration{'s' if len(d.times) != 1 else ''} from "
+            f"{stamps[0][:cut]} to {stamps[-1][:cut]} ({span:.0f} days); change = last - "
+            "first, per 30 d = least-squares slope, change/σ = change over both fits' "
+            "standard errors"]
+    body = [[p.param.label, p.unit, *[_g(v) for v in p.values], _g(p.change, "+.4g"),
+             _g(p.per_30d, "+.4g"), _g(p.change_sigma, "+.1f")] for p in d.params]
+    body += [[q.replace("_", " "), "", *[_g(v, ".3g") for v in d.quality[q]], "", "", ""]
+             for q in QUALITY if np.isfinite(d.quality[q]).any()]
+    header = ["parameter", "unit", *[s[:cut] for s in stamps], "change", "per 30 d",
+              "change/σ"]
+    right = set(range(2, len(header)))
+    return head + format_table(header, body, right) + [f"note: {n}" for n in d.notes]
+
+
+# --- the fleet -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Spread:
+    """One parameter across the fleet (the devices whose calibration has it in ``unit``)."""
+
+    param: Param
+    unit: str
+    devices: list[str]
+    values: np.ndarray
+    median: float
+    mad: float
+    z: np.ndarray  # robust z of each device
+    z_from: str  # "MAD", "mean absolute deviation (MAD = 0)", "all equal"
+
+    @property
+    def outliers(self) -> np.ndarray:
+        return np.flatnonzero(np.abs(self.z) > Z_LIMIT)
+
+
+def robust_z(values: np.ndarray) -> tuple[np.ndarray, float, float, str]:
+    """Modified z-scores of ``values`` (see the module's text): z, median, MAD, how."""
+    x = np.asarray(values, dtype=float)
+    med = float(np.median(x))
+    dev = np.abs(x - med)
+    mad = float(np.median(dev))
+    if mad > 0:
+        return _MAD_TO_Z * (x - med) / mad, med, mad, "MAD"
+    mean_ad = float(dev.mean())
+    if mean_ad > 0:
+        return (x - med) / (_MEANAD_TO_SIGMA * mean_ad), med, mad, (
+            "mean absolute deviation (MAD = 0)")
+    return np.zeros_like(x), med, mad, "all equal"
+
+
+@dataclass(frozen=True)
+class Outlier:
+    device: str
+    spread: Spread
+    value: float
+    z: float
+
+
+@dataclass(frozen=True)
+class FleetReport:
+    at: datetime
+    devices: list[str]
+    calibrated_at: list[datetime]  # each device's newest calibration at or before ``at``
+    paths: list[str]
+    spreads: list[Spread]
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def outliers(self) -> list[Outlier]:
+        out = [Outlier(s.devices[i], s, float(s.values[i]), float(s.z[i]))
+               for s in self.spreads for i in s.outliers]
+        return sorted(out, key=lambda o: (o.device, -abs(o.z)))
+
+
+def fleet_report(rows: list[dict[str, Any]], at: datetime | None = None) -> FleetReport:
+    """Every parameter across the fleet: the newest calibration of each device at ``at`` (now
+    by default) from the store's usable rows."""
+    at = at or datetime.now(timezone.utc)
+    by_device: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        by_device.setdefault(r["device"], []).append(r)
+    picked = {d: newest(rs, at) for d, rs in sorted(by_device.items())}
+    picked = {d: r for d, r in picked.items() if r is not None}
+    notes = [f"{d}: no calibration at or before {iso(at)}" for d in by_device
+             if d not in picked]
+    spreads: list[Spread] = []
+    if len(picked) < MIN_DEVICES:
+        notes.append(f"{len(picked)} device(s): a fleet of fewer than {MIN_DEVICES} has no "
+                     "usual value to stand out from; nothing judged")
+        picked_for_spread = {}
+    else:
+        picked_for_spread = picked
+    for p in PARAMS:
+        groups: dict[str, list[str]] = {}
+        for d, r in picked_for_spread.items():
+            unit = p.unit(r)
+            if unit is not None and r.get(p.column) is not None:
+                groups.setdefault(unit, []).append(d)
+        for unit, devs in groups.items():
+            if len(devs) < MIN_DEVICES:
+                notes.append(f"{p.label} in {unit}: {len(devs)} device(s), fewer than "
+                             f"{MIN_DEVICES}: not judged")
+                continue
+            values = np.array([picked[d][p.column] for d in devs], dtype=float)
+            z, med, mad, how = robust_z(values)
+            spreads.append(Spread(p, unit, devs, values, med, mad, z, how))
+    return FleetReport(at, list(picked), [r["calibrated_at"] for r in picked.values()],
+                       [r["path"] for r in picked.values()], spreads, notes)
+
+
+def fleet_lines(rep: FleetReport) -> list[str]:
+    """The fleet report as text: a row per parameter, then the outliers."""
+    head = [f"fleet: {len(rep.devices)} devices, the newest calibration of each at or before "
+            f"{iso(rep.at)}; robust z = 0.6745 (x - median) / MAD, outlier |z| > {Z_LIMIT:g}"]
+    body = []
+    for s in rep.spreads:
+        flagged = ", ".join(f"{s.devices[i]} (z = {s.z[i]:+.1f})" for i in s.outliers)
+        body.append([s.param.label, s.unit, str(len(s.devices)), _g(s.median, ".5g"),
+                     _g(s.mad, ".3g"), _g(float(s.values.min()), ".5g"),
+                     _g(float(s.values.max()), ".5g"), _g(float(np.abs(s.z).max()), ".1f"),
+                     flagged or "-"])
+    lines = head + format_table(["parameter", "unit", "n", "median", "MAD", "min", "max",
+                                 "max |z|", "outliers"], body, right={2, 3, 4, 5, 6, 7})
+    outliers = rep.outliers
+    lines.append(f"outliers: {len(outliers)}" + (":" if outliers else ""))
+    path = dict(zip(rep.devices, rep.paths))
+    lines += [f"  {o.device}: {o.spread.param.label} = {o.value:.5g} {o.spread.unit} (fleet "
+              f"median {o.spread.median:.5g}, z = {o.z:+.1f})  {path[o.device]}"
+              for o in outliers]
+    lines += [f"note: {n}" for n in rep.notes]
+    notes_z = sorted({f"{s.param.label}: z from the {s.z_from}" for s in rep.spreads
+                      if s.z_from != "MAD"})
+    return lines + [f"note: {n}" for n in notes_z]

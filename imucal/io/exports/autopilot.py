@@ -1,0 +1,122 @@
+"""Flight-controller parameter files: PX4 (``CAL_ACC0_*``, ``CAL_GYRO0_*``) and ArduPilot
+(``INS_ACCOFFS_*``, ``INS_ACCSCAL_*``, ``INS_GYROFFS_*``).
+
+Both apply, in the sensor's frame, offset first and then a per-axis scale:
+
+- PX4 (``sensor_calibration/Accelerometer.hpp``, ``Correct``):
+  ``a = R_board ((a_m - thermal - offset) ⊙ scale)``; ``CAL_ACC0_xOFF`` in m/s^2,
+  ``CAL_ACC0_xSCALE`` dimensionless; gyroscope ``w = R_board (w_m - thermal - CAL_GYRO0_xOFF)``,
+  offsets in rad/s, no scale.
+- ArduPilot (``AP_InertialSensor_Backend::_rotate_and_correct_accel``): after the sensor's
+  orientation, ``accel -= INS_ACCOFFS; accel *= INS_ACCSCAL`` (m/s^2, dimensionless);
+  gyroscope ``gyro -= INS_GYROFFS`` (rad/s), no scale.
+
+These models have a diagonal scale only. imucal's ``a = T K (a_raw - b)`` becomes
+``a ~ K ⊙ (a_raw - b)`` in SI units: the offsets and scales are kept, the misalignment T is
+dropped (T has a unit diagonal, so nothing else changes). What that costs is computed from the
+model over 2000 directions spread over the sphere (the calibration file holds the still
+blocks' times, not their mean readings): the vector error ``|K ⊙ (a_raw - b) - a|`` of a still
+device reading |g| in each direction, RMS and maximum, in mg. The gyroscope keeps only its
+offset: its scale and misalignment are dropped, and the rate error is given in % of the rate.
+Both autopilots re-estimate gyroscope offsets at start-up, so those values are a starting point.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from imucal.io.exports.common import (
+    Exported,
+    ExportInput,
+    fibonacci_sphere,
+    fmt_num,
+    require_gyro_rad,
+    si_acc_factors,
+)
+from imucal.models import SensorModel
+
+
+def diagonal_acc(model: SensorModel, c_in: float, c_out: float) -> tuple[np.ndarray, np.ndarray]:
+    """(offset m/s^2, scale) of ``a_SI = scale ⊙ (a_raw_SI - offset)`` from imucal's model."""
+    return model.b * c_in, model.K * c_out / c_in
+
+
+def dropped_misalignment_mg(model: SensorModel, g: float, n: int = 2000
+                            ) -> tuple[float, float]:
+    """RMS and max over the sphere of ``|K ⊙ (a_raw - b) - a|`` for ``a = g u``, in mg."""
+    a = g * fibonacci_sphere(n)
+    raw = model.invert(a)
+    diag = (raw - model.b) * model.K
+    err = np.linalg.norm(diag - a, axis=1) / g * 1000.0
+    return float(np.sqrt(np.mean(err**2))), float(err.max())
+
+
+def dropped_gyro_percent(model: SensorModel, n: int = 2000) -> tuple[float, float]:
+    """RMS and max over rotation directions of ``|(w_raw - b) - w| / |w|`` in %."""
+    w = fibonacci_sphere(n)
+    raw = model.invert(w)
+    err = np.linalg.norm((raw - model.b) - w, axis=1) * 100.0
+    return float(np.sqrt(np.mean(err**2))), float(err.max())
+
+
+def _losses(inp: ExportInput, seg) -> list[str]:
+    rms, mx = dropped_misalignment_mg(seg.acc, inp.calibration.g)
+    notes = [f"accelerometer: diagonal scale only; dropping the misalignment leaves {rms:.3g} "
+             f"mg RMS, {mx:.3g} mg at most, on a still device (computed from the model over "
+             "2000 directions on the sphere)"]
+    if seg.gyro is not None:
+        grms, gmx = dropped_gyro_percent(seg.gyro)
+        notes.append(f"gyroscope: offsets only; dropping its scale and misalignment leaves "
+                     f"{grms:.3g} % of the rate RMS, {gmx:.3g} % at most (over directions)")
+    return notes
+
+
+def px4(inp: ExportInput, out: Path, segment: int | None) -> Exported:
+    """A QGroundControl parameter file (tab-separated: vehicle, component, name, value, type;
+    type 9 = float)."""
+    index, seg = inp.segment(segment, "px4")
+    c_in, c_out = si_acc_factors(inp, "px4")
+    require_gyro_rad(inp, "px4")
+    off, scale = diagonal_acc(seg.acc, c_in, c_out)
+    notes = _losses(inp, seg)
+    lines = [f"# {h}" for h in ["PX4 parameters: a = (a_m - CAL_ACC0_xOFF) * CAL_ACC0_xSCALE "
+                                "(m/s^2, sensor frame); w = w_m - CAL_GYRO0_xOFF (rad/s)",
+                                *inp.header_lines(), *notes,
+                                "set CAL_ACC0_ID / CAL_GYRO0_ID to your sensors' device ids",
+                                "Vehicle-Id Component-Id Name Value Type"]]
+    rows = [(f"CAL_ACC0_{a}OFF", o) for a, o in zip("XYZ", off)]
+    rows += [(f"CAL_ACC0_{a}SCALE", s) for a, s in zip("XYZ", scale)]
+    if seg.gyro is not None:
+        rows += [(f"CAL_GYRO0_{a}OFF", o) for a, o in zip("XYZ", seg.gyro.b)]
+    lines += [f"1\t1\t{name}\t{fmt_num(v)}\t9" for name, v in rows]
+    return Exported(files=[(out, "\n".join(lines) + "\n")],
+                    notes=notes + _segment_note(inp, index))
+
+
+def ardupilot(inp: ExportInput, out: Path, segment: int | None) -> Exported:
+    """A Mission Planner / MAVProxy parameter file (``NAME,VALUE`` lines, # comments)."""
+    index, seg = inp.segment(segment, "ardupilot")
+    c_in, c_out = si_acc_factors(inp, "ardupilot")
+    require_gyro_rad(inp, "ardupilot")
+    off, scale = diagonal_acc(seg.acc, c_in, c_out)
+    notes = _losses(inp, seg)
+    if np.any(np.abs(off) > 3.5) or np.any(np.abs(scale - 1.0) > 0.2):
+        notes.append("outside ArduPilot's accepted range (|offset| <= 3.5 m/s^2, scale "
+                     "0.8..1.2): it will refuse these values")
+    lines = [f"# {h}" for h in ["ArduPilot parameters: accel -= INS_ACCOFFS; accel *= "
+                                "INS_ACCSCAL (m/s^2, after the sensor's orientation); gyro -= "
+                                "INS_GYROFFS (rad/s)", *inp.header_lines(), *notes]]
+    rows = [(f"INS_ACCOFFS_{a}", o) for a, o in zip("XYZ", off)]
+    rows += [(f"INS_ACCSCAL_{a}", s) for a, s in zip("XYZ", scale)]
+    if seg.gyro is not None:
+        rows += [(f"INS_GYROFFS_{a}", o) for a, o in zip("XYZ", seg.gyro.b)]
+    lines += [f"{name},{fmt_num(v)}" for name, v in rows]
+    return Exported(files=[(out, "\n".join(lines) + "\n")],
+                    notes=notes + _segment_note(inp, index))
+
+
+def _segment_note(inp: ExportInput, index: int) -> list[str]:
+    n = len(inp.calibration.segments)
+    return [f"segment {index} of {n} only"] if n > 1 else []

@@ -1,0 +1,332 @@
+"""The static detector's values chosen from the recording (method.md §1).
+
+Fixed values break on real files: initial still periods of 2 s to a minute, sensors whose
+still/moving contrast needs k from 2 to 16 and more, poses held 1 s (shorter than the thesis's
+window plus its shortest block). So, for every value the user left unset:
+
+* The reference level is the initial still interval's (thesis §3.1) when that interval really
+  is still (its mean does not wander, :func:`~imucal.stages.detect.wander_ratio`), else the
+  quiet level of the whole recording: a low quantile of M1 over short windows.
+* k is scanned over a wide grid; ``s2 < k * s2_init`` finds the still stretches, and each
+  stretch ends where its own M1 leaves its own noise: ``s2 > LOCAL(w) * median s2`` over the
+  stretch, ``LOCAL(101) = 2`` the thesis's k. A sensor whose poses are noisier than its
+  initial rest (a hand holds them) needs a large k to find them; the local level keeps such a
+  k from stretching every block into the turns, which the accelerometer barely sees (a block
+  mean hardly moves: measured, k = 2 -> 32 on a synthetic session lowers the accelerometer's
+  cross-validated error 0.195 -> 0.177 mg while the gravity error grows 0.045 -> 0.41 deg)
+  and the gyroscope fit pays for (M5).
+* Each candidate is scored by a cross-validated static norm error of block means
+  (:mod:`imucal.stages.detect_score`; imu_tk keeps the lowest in-sample residual over k =
+  2..10, which more, shorter blocks always lower). Candidates must keep MIN_ORIENTATIONS
+  distinct directions and nine tenths of the most any candidate found, so dropping the
+  awkward poses does not win either.
+* The window starts at the thesis's 1.01 s and is halved while the blocks found are not
+  comfortably longer than it (short holds), down to 0.25 s (MIN_WINDOW_S: shorter windows
+  see a turn's slow start too late) and never below MIN_WINDOW samples (the noise); the
+  shortest block keeps the thesis's ratio to the window.
+
+M1 is computed once per window; the thresholds are tried on its per-bin maximum (a few samples
+a bin), so a scan costs a few passes over the recording, and the chosen setting is redone at
+full resolution. What was tried and why one was taken goes in :class:`Tuning`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from imucal.errors import ImucalError
+from imucal.numerics.windows import runs_of_true
+from imucal.settings import THESIS_INIT, DetectSettings
+from imucal.stages.detect import (
+    INIT_MAX_F,
+    THESIS_MIN_LEN_S,
+    THESIS_WINDOW_S,
+    Candidate,
+    Detection,
+    Tuning,
+    check_window,
+    initial_level,
+    isolated_outliers,
+    outlier_note,
+    rolling_statistic,
+    sample_rate,
+    thesis_window,
+    wander_ratio,
+    without_outliers,
+)
+from imucal.stages.detect_score import MIN_ORIENTATIONS, Blocks, Prefix, Scorer
+
+K_GRID = tuple(2.0 ** (i / 2) for i in range(19))  # 1 ... 512, a factor sqrt(2) apart
+MIN_WINDOW = 11  # samples: below, a still window's variance scatters by more than +-45 %
+MIN_WINDOW_S = 0.25  # s: shorter windows see a turn's slow start too late (measured: blocks
+# of 0.13 s in 0.15 s holds fit the accelerometer to 0.34 mg but the gyroscope to 3 degrees)
+HALVINGS = 2  # the window goes down to a quarter of the thesis's (0.25 s) for short holds
+HOLD_WINDOWS = 1.5  # a window fits the holds when the median block is this many windows long
+QUIET_QUANTILE = 0.05  # the quietest 5 % of short windows tell the noise level
+KEEP_ORIENTATIONS = 0.9  # of the most orientations any candidate found
+TIE = 0.10  # scores within 10 % of the best are the same: cross-validation noise
+BIN_SAMPLES = 16  # scan bins: about window / 16 samples each
+
+
+def local_factor(window: int, statistic: str = "thesis") -> float:
+    """How far M1 may rise over a still stretch's own median before the stretch ends: three
+    standard deviations of a variance over ``window - 1`` degrees of freedom, squared (M1
+    squares variances; imu_tk's norm of the variances does not). 2.0 at the thesis's 101
+    samples, its k; measured on white noise it lies between the 99.9 % points of one axis
+    alone and of three equal axes."""
+    f = 1.0 + 3.0 * math.sqrt(2.0 / max(window - 1, 1))
+    return f * f if statistic == "thesis" else f
+
+
+def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
+                  acc_unit: str = "g", g_in: float = 1.0, source: str = "session") -> Detection:
+    """Detect the still blocks with the values the user gave and the rest chosen from the
+    data (see the module's docstring); the choice is recorded in ``Detection.tuning``."""
+    n = len(acc)
+    rate, _ = sample_rate(t)
+    windows = [settings.window] if settings.window else candidate_windows(rate, n)
+    check_window(min(windows), n, source)
+    outliers = isolated_outliers(acc)
+    clean = without_outliers(acc, outliers)
+
+    stats: dict[int, np.ndarray] = {}
+    ref, init, note, reference, (quiet, wq) = _reference(clean, t, windows, stats, settings,
+                                                         source)
+    # An explicit k is the thesis's detector: s2 < k s2_init and nothing else.
+    ks = K_GRID if settings.k is None else (float(settings.k),)
+    local = settings.statistic if settings.k is None else None  # local ends, for M1 as used
+    scorer = Scorer(acc_unit, g_in)
+    tried: list[tuple[Candidate, Blocks]] = []
+    for w in sorted(windows, reverse=True):
+        if w not in stats:
+            stats[w] = _statistic(clean, w, settings.statistic)
+        min_len = settings.min_len or min_len_for(w)
+        found = _scan(acc, stats[w], ref, ks, w, min_len, outliers, local, scorer)
+        tried += found
+        if _fits_the_holds(found, w):
+            break
+    cands = [c for c, _ in tried]
+    chosen, why = choose(cands)
+    best = cands[chosen]
+
+    # The chosen setting at full resolution (the scan ran on bins).
+    stat = stats[best.window]
+    q = local_factor(best.window, local) if local else None
+    runs = still_runs(stat, best.k * ref, q, outliers)
+    lengths = runs[:, 1] - runs[:, 0]
+    exact = Blocks.exact(acc, runs[lengths >= best.min_len])
+    blocks = exact.blocks
+    cands[chosen] = scorer.candidate(best.window, best.min_len, best.k, exact, force=True)
+    reason = why(cands[chosen])
+    _refuse_never_still(clean, blocks, source)
+    short, min_hold = _short_holds(stats, best.k * ref, local, outliers, settings.min_len)
+    tuned = tuple(name for name, v in (("window", settings.window), ("min_len", settings.min_len),
+                                       ("k", settings.k)) if v is None)
+    tuning = Tuning(
+        tuned=tuned, reference=reference, local_factor=q, quiet_level=quiet, quiet_window=wq,
+        candidates=tuple(cands), chosen=chosen, reason=reason,
+        hold_s=float((np.median(exact.counts) + best.window) / rate) if len(blocks) else None,
+        short_holds=short, min_hold_s=min_hold / rate)
+    return Detection(statistic=stat, threshold=best.k * ref, s2_init=ref, blocks=blocks,
+                     means=exact.means, window=best.window, min_len=best.min_len, init=init,
+                     k=best.k, note=note, outliers=outliers,
+                     outlier_note=outlier_note(outliers, t, acc), tuning=tuning,
+                     orientations=cands[chosen].orientations)
+
+
+def _reference(clean: np.ndarray, t: np.ndarray, windows: list[int],
+               stats: dict[int, np.ndarray], settings: DetectSettings, source: str
+               ) -> tuple[float, tuple[float, float] | None, str | None, str, tuple[float, int]]:
+    """The reference level s2_init, the interval it came from, a note for the user, where it
+    came from in words, and the quiet level with its window. M1 goes into ``stats``: over the
+    shortest window when the quiet level is the reference (short windows fit in short holds),
+    else over the thesis's, which the scan needs first anyway."""
+    ref, init, note = initial_level(clean, t, settings.init or THESIS_INIT, settings.statistic,
+                                    source, slide=settings.init is not None)
+    w = min(windows) if ref is None else max(windows)
+    stats[w] = _statistic(clean, w, settings.statistic)
+    quiet = quiet_level(stats[w])
+    if ref is not None:
+        return (ref, init, note, f"the initial still interval {init[0]:g}-{init[1]:g} s",
+                (quiet, w))
+    if not quiet > 0.0:
+        raise ImucalError("the accelerometer is exactly constant over most of the recording, so "
+                          "no noise level can be learned (quantised or synthetic data?)",
+                          source=source, field="accelerometer")
+    if note:
+        note += ("; the noise level was learned from the quietest stretches of the recording "
+                 "instead: start recordings with the sensor lying still")
+    return quiet, None, note, (f"the quiet level: the lowest {QUIET_QUANTILE:.0%} of M1 over "
+                               f"{w}-sample windows of the whole recording"), (quiet, w)
+
+
+def _statistic(x: np.ndarray, window: int, statistic: str) -> np.ndarray:
+    """M1; a variance too large for floating point is infinite: not still, and said quietly."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return rolling_statistic(x, window, statistic)
+
+
+def _short_holds(stats: dict[int, np.ndarray], threshold: float, local: str | None,
+                 outliers: np.ndarray, min_len: int | None) -> tuple[int, int]:
+    """How many still stretches, seen through the shortest window tried, were too short to
+    make a block there, and the shortest a block can come from (``min_len`` still windows:
+    ``min_len + w - 1`` samples)."""
+    w = min(stats)
+    shortest = min_len or min_len_for(w)
+    runs = still_runs(stats[w], threshold, local_factor(w, local) if local else None, outliers)
+    lengths = runs[:, 1] - runs[:, 0]
+    return int(np.sum((lengths >= 2) & (lengths < shortest))), shortest + w - 1
+
+
+def candidate_windows(rate: float, n: int) -> list[int]:
+    """The thesis's window and its halvings down to the noise's floor, odd, at most ``n``."""
+    w0 = thesis_window(rate)
+    floor = max(MIN_WINDOW, int(round(MIN_WINDOW_S * rate)) | 1)
+    out = [w0] + [(w0 >> j) | 1 for j in range(1, HALVINGS + 1) if (w0 >> j) | 1 >= floor]
+    fit = [w for w in out if w <= n]
+    return fit or [min(out)]
+
+
+def min_len_for(window: int) -> int:
+    """The shortest block for a window: the thesis's ratio (100 samples for 101)."""
+    return max(1, int(round(window * THESIS_MIN_LEN_S / THESIS_WINDOW_S)))
+
+
+def quiet_level(stat: np.ndarray) -> float:
+    """The noise level of the quietest stretches: a low quantile of M1 over short windows.
+    Exact zeros (a flat, clipped or quantised axis) say nothing about the noise and are
+    left out; a quantile is not moved by a few wild windows."""
+    stride = max(1, len(stat) // 500_000)  # a long recording: every stride-th window
+    s = stat[::stride]
+    s = s[s > 0]
+    return float(np.quantile(s, QUIET_QUANTILE)) if len(s) else 0.0
+
+
+def still_runs(values: np.ndarray, threshold: float, local: float | None,
+               outliers: np.ndarray, per: int = 1) -> np.ndarray:
+    """[start, end) runs (in units of ``per`` samples) where ``values < threshold`` and, with
+    ``local``, where each such stretch's values stay under ``local`` times their median.
+    Outlier samples end a run."""
+    mask = values < threshold
+    if len(outliers):
+        mask[outliers // per] = False
+    runs = runs_of_true(mask)
+    if local is None or len(runs) == 0:
+        return runs
+    median = _run_medians(values, runs)
+    lengths = runs[:, 1] - runs[:, 0]
+    idx = _run_indices(runs)
+    mask[idx] = values[idx] < local * np.repeat(median, lengths)
+    return runs_of_true(mask)
+
+
+def _run_indices(runs: np.ndarray, step: int = 1) -> np.ndarray:
+    """Every ``step``-th index of each [start, end) run, concatenated in order."""
+    lengths = -(-(runs[:, 1] - runs[:, 0]) // step)
+    offsets = np.repeat(runs[:, 0] - (np.cumsum(lengths) - lengths) * step, lengths)
+    return offsets + np.arange(int(lengths.sum())) * step
+
+
+def _run_medians(values: np.ndarray, runs: np.ndarray) -> np.ndarray:
+    """The median of ``values`` over each run, from at most about 200,000 of them (M1 is
+    smooth over a window: every step-th value tells its median as well)."""
+    step = max(1, int((runs[:, 1] - runs[:, 0]).sum()) // 200_000)
+    lengths = -(-(runs[:, 1] - runs[:, 0]) // step)
+    v = values[_run_indices(runs, step)]
+    # One sort by run, then by value: the run's number plus its log value squeezed into
+    # [0, 0.5) (an argsort of floats is several times faster than a lexsort of two keys).
+    logv = np.log(np.maximum(v, np.finfo(float).tiny))
+    lo, hi = float(logv.min()), float(logv.max())
+    key = (logv - lo) * (0.5 / max(hi - lo, 1e-300))
+    key += np.repeat(np.arange(len(runs), dtype=float), lengths)
+    order = np.argsort(key)
+    first = np.cumsum(lengths) - lengths
+    return v[order[first + (lengths - 1) // 2]]
+
+
+def _scan(acc: np.ndarray, stat: np.ndarray, ref: float, ks: tuple[float, ...], window: int,
+          min_len: int, outliers: np.ndarray, local: str | None, scorer: Scorer
+          ) -> list[tuple[Candidate, Blocks]]:
+    """Every k at one window, on bins of ``window / BIN_SAMPLES`` samples: a bin is still when
+    its largest M1 is, so the blocks are the full-resolution ones trimmed by less than a bin
+    at each end."""
+    n = len(acc)
+    d = max(1, window // BIN_SAMPLES)
+    nb = -(-n // d)
+    padded = np.concatenate([stat, np.full(nb * d - n, np.inf)]) if nb * d > n else stat
+    binmax = padded.reshape(nb, d).max(axis=1)
+    pre = Prefix(acc, d)
+    q = local_factor(window, local) if local else None
+    out = []
+    for k in ks:
+        runs = still_runs(binmax, k * ref, q, outliers, per=d)
+        runs = runs[(pre.count[runs[:, 1]] - pre.count[runs[:, 0]]) >= min_len]
+        blk = Blocks.of(pre, runs)
+        out.append((scorer.candidate(window, min_len, k, blk), blk))
+    return out
+
+
+def _fits_the_holds(found: list[tuple[Candidate, Blocks]], window: int) -> bool:
+    """Is this window short enough for the holds? Its best-scoring eligible candidate's median
+    block is at least HOLD_WINDOWS windows long (the thesis: 3 s holds, 2 s blocks, 1 s
+    window). None eligible: too few poses found, and shorter windows may find more."""
+    most = max((c.orientations for c, _ in found), default=0)
+    eligible = [(c, b) for c, b in found if c.score_mg is not None
+                and c.orientations >= max(MIN_ORIENTATIONS, KEEP_ORIENTATIONS * most)]
+    if not eligible:
+        return False
+    _, blk = min(eligible, key=lambda x: x[0].score_mg)
+    return bool(np.median(blk.counts) >= HOLD_WINDOWS * window)
+
+
+def choose(cands: list[Candidate]) -> tuple[int, Callable[[Candidate], str]]:
+    """The candidate to take, and how to say why (given its row redone at full resolution).
+
+    The eligible candidates keep enough orientations; the lowest cross-validated error among
+    them wins, and candidates within TIE of it are as good: of those, the longest window (the
+    thesis's, when the holds allow it) and then the middle k of the plateau, a threshold with
+    equally good neighbours on both sides. Where no candidate has MIN_ORIENTATIONS, no error
+    can be cross-validated: the most orientations, the longest window and the middle k.
+    """
+    most = max(c.orientations for c in cands)
+    scored = [i for i, c in enumerate(cands) if c.score_mg is not None
+              and c.orientations >= max(MIN_ORIENTATIONS, KEEP_ORIENTATIONS * most)]
+    pool = scored or [i for i, c in enumerate(cands) if c.orientations == most]
+    if scored:
+        best = min(scored, key=lambda i: cands[i].score_mg)
+        pool = [i for i in scored if cands[i].score_mg <= cands[best].score_mg * (1 + TIE)]
+    window = max(cands[i].window for i in pool)
+    plateau = sorted((i for i in pool if cands[i].window == window), key=lambda i: cands[i].k)
+    chosen = plateau[len(plateau) // 2]
+
+    def why(c: Candidate) -> str:
+        head = f"window {c.window}, k = {c.k:.3g}, {c.blocks} blocks in {c.orientations} " \
+               "orientations"
+        if not scored:
+            return (f"{head}: no setting found the {MIN_ORIENTATIONS} distinct orientations a "
+                    f"cross-validated score needs; of those with the most ({most}), the longest "
+                    "window and the middle k")
+        b = cands[best]
+        return (f"{head}, cross-validated static norm error {c.score_mg:.3g} mg; the lowest of "
+                f"the {len(scored)} settings with enough orientations was {b.score_mg:.3g} mg "
+                f"(window {b.window}, k = {b.k:.3g}); of the {len(pool)} within {TIE:.0%} of "
+                "it, the longest window and the middle of its plateau of k")
+
+    return chosen, why
+
+
+def _refuse_never_still(clean: np.ndarray, blocks: np.ndarray, source: str) -> None:
+    """Blocks whose mean wanders are slow motion, not stillness; when even the longest ones
+    do, the recording has no still period at all."""
+    if len(blocks) == 0:
+        return
+    longest = blocks[np.argsort(blocks[:, 0] - blocks[:, 1])[:5]]
+    f = [wander_ratio(clean[a:b]) for a, b in longest]
+    if min(f) > INIT_MAX_F:
+        raise ImucalError(f"the accelerometer is never still: even its quietest stretches drift "
+                          f"(their means wander {min(f):.0f}x more than the noise allows); "
+                          "record still poses, each held motionless for a few seconds",
+                          source=source, field="accelerometer")

@@ -1,0 +1,167 @@
+"""The sensor's noise figures: white noise density, bias instability and random walk per axis.
+
+Two sources, one estimator (:mod:`imucal.numerics.allan`, the overlapping Allan deviation and
+the fit ``avar = N^2/tau + c + K^2 tau/3``):
+
+- the still blocks of a calibration (method.md §1): the Allan variance pooled over the blocks,
+  every cluster inside one block, so the pose changes between blocks do not count as noise.
+  Blocks of a few seconds determine the white noise; bias instability and random walk need
+  minutes to hours, so they are reported only where the curve shows them;
+- a long still recording, streamed a chunk at a time (:class:`StreamingNoise`).
+
+Units: the white noise density ``N`` is in ``unit/sqrt(Hz)`` (velocity random walk for the
+accelerometer, angle random walk for the gyroscope), the random walk ``K`` in
+``unit/s/sqrt(Hz)``, the bias instability in ``unit``, with ``unit`` the signal's (g, m/s^2 or
+rad/s once calibrated; counts if raw counts are measured).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from imucal.numerics.allan import AllanAccumulator, AllanCurve, NoiseFit, fit_noise
+from imucal.numerics.allan import pooled_allan_variance as _pooled
+from imucal.stages.apply import CalibratedSignals
+
+AXES = ("x", "y", "z")
+MAX_STILL_DRIFT = 0.01  # of |g|: above it the recording is not still (see StreamingNoise)
+# unit of the signal -> (white noise density, random walk) units
+DENSITY_UNITS = {
+    "g": ("g/sqrt(Hz)", "g/s/sqrt(Hz)"),
+    "m/s^2": ("m/s^2/sqrt(Hz)", "m/s^3/sqrt(Hz)"),
+    "rad/s": ("rad/s/sqrt(Hz)", "rad/s^2/sqrt(Hz)"),
+    "counts": ("counts/sqrt(Hz)", "counts/s/sqrt(Hz)"),
+}
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """One sensor's Allan curve and the figures fitted to each axis."""
+
+    sensor: str  # "accelerometer" or "gyroscope"
+    unit: str  # of the signal
+    rate_hz: float
+    curve: AllanCurve
+    fits: tuple[NoiseFit, NoiseFit, NoiseFit]
+
+    @property
+    def taus(self) -> np.ndarray:
+        return self.curve.lags / self.rate_hz
+
+    def per_axis(self, name: str) -> list[float | None]:
+        return [getattr(f, name) for f in self.fits]
+
+    @property
+    def white_unit(self) -> str:
+        return DENSITY_UNITS.get(self.unit, (f"{self.unit}/sqrt(Hz)",))[0]
+
+    @property
+    def random_walk_unit(self) -> str:
+        return DENSITY_UNITS.get(self.unit, ("", f"{self.unit}/s/sqrt(Hz)"))[1]
+
+    def notes(self) -> list[str]:
+        """Why figures are missing, once per reason (the axes usually agree)."""
+        out: list[str] = []
+        for f in self.fits:
+            for w in f.why:
+                key = w.split(":")[0]
+                if not any(o.startswith(key) for o in out):
+                    out.append(w)
+        return out
+
+
+@dataclass(frozen=True)
+class NoiseReport:
+    accelerometer: SensorNoise | None
+    gyroscope: SensorNoise | None
+    source: str  # where the samples came from, in words
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+def sensor_noise(sensor: str, unit: str, rate_hz: float, curve: AllanCurve) -> SensorNoise:
+    rate_hz = float(f"{rate_hz:.10g}")  # a rate from timestamps: its last digits are rounding
+    fits = tuple(fit_noise(curve, 1.0 / rate_hz, c) for c in range(3))
+    return SensorNoise(sensor=sensor, unit=unit, rate_hz=rate_hz, curve=curve,
+                       fits=fits)  # type: ignore[arg-type]
+
+
+def still_noise(signals: CalibratedSignals, block_times: np.ndarray) -> NoiseReport | None:
+    """Noise figures of the calibrated signals inside the still blocks ``[t_start, t_end)``."""
+    block_times = np.asarray(block_times, dtype=float).reshape(-1, 2)
+    if len(block_times) == 0 or len(signals.t_acc) < 2:
+        return None
+    lengths = block_times[:, 1] - block_times[:, 0]
+    source = (f"still blocks of the calibration: {len(block_times)} blocks, "
+              f"{lengths.sum():.1f} s in all, longest {lengths.max():.2f} s; overlapping Allan "
+              f"variance within each block, pooled over the blocks")
+    acc = _blocks_noise("accelerometer", signals.acc_unit, signals.t_acc, signals.acc,
+                        block_times)
+    gyro = None
+    if signals.gyro is not None and signals.t_gyro is not None and len(signals.t_gyro) > 1:
+        gyro = _blocks_noise("gyroscope", "rad/s", signals.t_gyro, signals.gyro, block_times)
+    return NoiseReport(accelerometer=acc, gyroscope=gyro, source=source)
+
+
+def _blocks_noise(sensor: str, unit: str, t: np.ndarray, x: np.ndarray,
+                  block_times: np.ndarray) -> SensorNoise | None:
+    lo = np.searchsorted(t, block_times[:, 0], side="left")
+    hi = np.searchsorted(t, block_times[:, 1], side="left")
+    curve = _pooled(x, lo, hi)
+    if len(curve.lags) == 0:
+        return None
+    # The rate inside the blocks: the median step there (a recording's gaps lie elsewhere).
+    steps = np.concatenate([np.diff(t[a:b]) for a, b in zip(lo, hi) if b - a > 1])
+    return sensor_noise(sensor, unit, float(1.0 / np.median(steps)), curve)
+
+
+class StreamingNoise:
+    """Noise figures of a long still recording fed a chunk at a time, in bounded memory: two
+    :class:`AllanAccumulator` (a few KB each) plus the clock's first and last times."""
+
+    def __init__(self, acc_unit: str, gyro_unit: str | None) -> None:
+        self.units = {"accelerometer": acc_unit, "gyroscope": gyro_unit}
+        self.acc = {"accelerometer": AllanAccumulator(3), "gyroscope": AllanAccumulator(3)}
+        self.clock: dict[str, list[float]] = {}  # sensor -> [t_first, t_last, n, step, gaps]
+
+    def update(self, sensor: str, t: np.ndarray, x: np.ndarray) -> None:
+        if len(t) == 0:
+            return
+        c = self.clock.get(sensor)
+        if c is None:
+            step = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+            c = self.clock[sensor] = [float(t[0]), float(t[0]), 0.0, step, 0.0]
+        steps = np.diff(np.concatenate([[c[1]], t])) if c[2] else np.diff(t)
+        if np.isfinite(c[3]):
+            c[4] += float(np.count_nonzero(steps > 1.5 * c[3]))
+        c[1] = float(t[-1])
+        c[2] += len(t)
+        self.acc[sensor].update(x)
+
+    def report(self, source: str) -> NoiseReport:
+        out: dict[str, SensorNoise | None] = {"accelerometer": None, "gyroscope": None}
+        notes = []
+        for sensor, c in self.clock.items():
+            t0, t1, n, _step, gaps = c
+            if n < 2 or t1 <= t0:
+                continue
+            rate = (n - 1) / (t1 - t0)  # mean rate over the whole record
+            if gaps:
+                notes.append(f"{sensor}: {int(gaps)} gaps longer than 1.5 sample periods; the "
+                             f"estimator assumes even sampling at {rate:.6g} Hz")
+            curve = self.acc[sensor].curve()
+            centre = self.acc[sensor].centre
+            if sensor == "accelerometer" and len(curve.lags) and centre is not None:
+                # A still accelerometer's mean drifts by far less than 1 % of |g| (bias
+                # instability of MEMS parts: 0.01-1 mg); a turn moves it by tens of percent.
+                moved = float(np.sqrt(curve.avar[-1].max()) / max(np.linalg.norm(centre), 1e-300))
+                if moved > MAX_STILL_DRIFT:
+                    notes.append(f"the recording does not look still: the accelerometer's "
+                                 f"Allan deviation at tau = {curve.lags[-1] / rate:.3g} s is "
+                                 f"{100 * moved:.2g} % of its mean magnitude; the figures "
+                                 "measure the motion")
+            if len(curve.lags):
+                out[sensor] = sensor_noise(sensor, self.units[sensor] or "", rate, curve)
+        return NoiseReport(accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
+                           source=source, notes=tuple(notes))

@@ -1,0 +1,210 @@
+"""imucal batch on dask.distributed: every summary row against the synthetic truth, a corrupt
+file's error row, a duplicate, two devices, a spec one unit breaks, a rerun that skips
+everything, and the --scheduler path against a scheduler and worker started here."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+
+from imucal.cli import main
+from imucal.io.export import write_session_mat
+from imucal.models import acc_theta, gyro_theta
+from imucal.synth import make_session, random_acc_model, random_gyro_model
+
+SPEC = """acc_bias_mg = 40
+acc_scale_pct = 3
+acc_misalignment_mrad = 10
+static_norm_error_mg = 1
+gravity_error_deg = 0.5
+"""
+OUT_OF_SPEC = "devB/2024-05-03_s.mat"  # its accelerometer bias is 120 mg on x
+
+
+def _sessions(root: Path) -> dict[str, object]:
+    """Eight short sessions on two devices (well inside the spec but one), a corrupt file and
+    a byte copy of one session under the other device: the truth by relative path."""
+    truths = {}
+    for d, device in enumerate(("devA", "devB")):
+        (root / device).mkdir(parents=True)
+        for i in range(4):
+            rng = np.random.default_rng(100 * d + i)
+            acc = random_acc_model(rng, mis=0.002, scale=0.005, bias=0.01)
+            name = f"{device}/2024-05-0{i + 1}_s.mat"
+            if name == OUT_OF_SPEC:
+                acc = type(acc)(T=acc.T, K=acc.K, b=np.array([0.12, 0.0, 0.0]))
+            sess, truth = make_session(poses=12, seed=100 * d + i, still=2.5, move=1.0,
+                                       init_still=4.0, acc_truth=acc,
+                                       gyro_truth=random_gyro_model(rng))
+            write_session_mat(root / name, sess)
+            truths[name] = truth
+    (root / "devA/2024-05-09_s.mat").write_bytes(b"MATLAB 5.0 MAT-file, not really" * 20)
+    shutil.copy(root / "devA/2024-05-01_s.mat", root / "devB/2024-06-01_s.mat")
+    truths["devB/2024-06-01_s.mat"] = truths["devA/2024-05-01_s.mat"]
+    return truths
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory) -> tuple[Path, dict]:
+    root = tmp_path_factory.mktemp("fleet")
+    truths = _sessions(root / "in")
+    (root / "limits.toml").write_text(SPEC)
+    return root, truths
+
+
+def _batch(root: Path, out: str, *extra: str) -> int:
+    return main(["batch", str(root / "in" / "*" / "*.mat"), "--out-dir", str(root / out),
+                 "--device-from", "{device}/{date}_*.mat", *extra])
+
+
+def _check_against_truth(row: dict, truth) -> None:
+    acc = np.array([row[f"acc_{n}"] for n in ("a_yz", "a_zy", "a_zx", "s_x", "s_y", "s_z",
+                                               "b_x", "b_y", "b_z")])
+    acc_std = np.array([row[k] for k in row if k.startswith("acc_std_")])
+    # Within six standard errors (the fit's own), and the errors small in absolute terms.
+    assert np.all(np.abs(acc - acc_theta(truth.acc)) < 6 * acc_std + 1e-4), row["path"]
+    assert np.all(acc_std < 3e-3)
+    gyro = np.array([row[k] for k in row if k.startswith("gyro_g_") or k.startswith("gyro_s_")])
+    gyro_std = np.array([row[k] for k in row if k.startswith("gyro_std_")])
+    assert np.all(np.abs(gyro - gyro_theta(truth.gyro)) < 6 * gyro_std + 1e-4), row["path"]
+    bias = np.array([row["gyro_b_x"], row["gyro_b_y"], row["gyro_b_z"]])
+    assert np.all(np.abs(bias - truth.gyro.b) < 1e-3)
+    assert row["static_norm_rms_mg_after"] < 0.5 < row["static_norm_rms_mg_before"]
+
+
+def test_batch_on_a_local_cluster(fleet, capsys) -> None:
+    root, truths = fleet
+    rc = _batch(root, "out", "--workers", "2", "--spec", str(root / "limits.toml"))
+    out = capsys.readouterr().out
+    assert rc == 1  # a corrupt file and a unit out of spec
+    assert "LocalCluster of 2 workers on 127.0.0.1" in out
+    assert "10: 8 calibrated, 1 failed, 1 skipped (1 duplicate)" in out
+    df = pl.read_parquet(root / "out" / "summary.parquet")
+    assert df.height == 10
+    rows = {str(Path(r["path"]).relative_to(root / "in")): r for r in df.to_dicts()}
+
+    bad = rows.pop("devA/2024-05-09_s.mat")
+    assert bad["status"] == "failed" and bad["device"] == "devA"
+    assert "2024-05-09_s.mat" in bad["error"] and bad["acc_s_x"] is None
+    assert bad["spec_pass"] is None
+
+    dup = rows["devB/2024-06-01_s.mat"]
+    assert dup["status"] == "duplicate"
+    assert dup["duplicate_of"] == str(root / "in/devA/2024-05-01_s.mat")
+    assert dup["calib_path"] == rows["devA/2024-05-01_s.mat"]["calib_path"]
+
+    for name, row in rows.items():
+        assert row["device"] == name.split("/")[0]
+        assert row["device_from"] == "pattern '{device}/{date}_*.mat'"
+        assert row["recorded_at"].date().isoformat() == name.split("/")[1][:10]
+        assert row["recorded_from"] == "pattern {date}"
+        assert row["sha256"] == __import__("hashlib").sha256(
+            (root / "in" / name).read_bytes()).hexdigest()
+        assert row["blas_threads"] == "1"
+        assert row["worker"].startswith("tcp://127.0.0.1:")
+        _check_against_truth(row, truths[name])
+        assert row["spec_pass"] is (name != OUT_OF_SPEC), (name, row["spec_broken"])
+        if row["status"] == "ok":
+            calib = __import__("json").loads(Path(row["calib_path"]).read_text())
+            assert Path(row["calib_path"]) == root / "out" / f"{name[:-4]}.calib.json"
+            assert calib["source"]["sha256"] == row["sha256"]
+            assert calib["spec"]["pass"] is row["spec_pass"]
+            assert calib["spec"]["broken"] == row["spec_broken"]
+    broken = rows[OUT_OF_SPEC]["spec_broken"]
+    assert len(broken) == 1 and broken[0].startswith("acc_bias_mg: b_x = 12")
+    assert "devB/2024-05-03_s: acc_bias_mg: b_x = 12" in out
+
+
+def test_rerun_skips_everything_and_force_redoes(fleet, capsys) -> None:
+    root, _ = fleet
+    before = pl.read_parquet(root / "out" / "summary.parquet")
+    rc = _batch(root, "out", "--workers", "2", "--spec", str(root / "limits.toml"))
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert "cluster         nothing to do" in out
+    assert "10: 0 calibrated, 0 failed, 10 skipped" in out
+    after = pl.read_parquet(root / "out" / "summary.parquet")
+    assert after.equals(before)
+    # Another spec is another judgement: every session is redone (the corrupt one too).
+    (root / "loose.toml").write_text("acc_bias_mg = 200\n")
+    rc = _batch(root, "out", "--workers", "1", "--spec", str(root / "loose.toml"))
+    assert rc == 1  # the corrupt file still fails
+    assert "10: 8 calibrated, 1 failed, 1 skipped" in capsys.readouterr().out
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for_worker(address: str, timeout: float = 60.0) -> None:
+    from distributed import Client
+
+    with Client(address, timeout="20s") as client:
+        client.wait_for_workers(1, timeout=timeout)
+
+
+def test_batch_on_an_existing_scheduler(fleet, capsys) -> None:
+    root, truths = fleet
+    dask = str(Path(sys.executable).with_name("dask"))
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = os.environ | {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+                        "MKL_NUM_THREADS": "1"}
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                               "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)]
+    try:
+        time.sleep(1.0)
+        procs.append(subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--host",
+                                       "127.0.0.1", "--no-dashboard"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        _wait_for_worker(address)
+        rc = main(["batch", str(root / "in" / "devB" / "2024-05-0[12]_s.mat"), "--out-dir",
+                   str(root / "remote"), "--scheduler", address])
+        out = capsys.readouterr().out
+        assert rc == 0, out
+        assert f"cluster         {address}" in out
+        assert "device ids      from the parent folder" in out
+        df = pl.read_parquet(root / "remote" / "summary.parquet")
+        assert df["status"].to_list() == ["ok", "ok"]
+        assert df["device_from"].to_list() == ["parent folder"] * 2
+        for row in df.to_dicts():
+            name = f"devB/{Path(row['path']).name}"
+            _check_against_truth(row, truths[name])
+            assert row["recorded_from"] == "file modification time"
+            assert (root / "remote" / "devB" / f"{Path(name).stem}.calib.json").exists()
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def test_batch_refuses_bad_options(fleet, capsys) -> None:
+    root, _ = fleet
+    assert main(["batch", str(root / "in/*/*.mat"), "--out-dir", str(root / "x"),
+                 "--gyro", "g.mat"]) == 2
+    assert main(["batch", str(root / "nothing/*.mat"), "--out-dir", str(root / "x")]) == 1
+    assert "no file matches" in capsys.readouterr().err
+    (root / "bad.toml").write_text("acc_bias = 40\n")
+    assert main(["batch", str(root / "in/*/*.mat"), "--out-dir", str(root / "x"),
+                 "--spec", str(root / "bad.toml")]) == 1
+    err = capsys.readouterr().err
+    assert "bad.toml" in err and "acc_bias" in err and "unknown limit" in err
+    assert main(["batch", str(root / "in/*/*.mat"), "--out-dir", str(root / "x"),
+                 "--device-from", "{date}_*.mat"]) == 1
+    assert "{device}" in capsys.readouterr().err
