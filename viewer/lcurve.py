@@ -77,7 +77,7 @@ def _log_lcurve_plot(rec: rr.RecordingStream, curves: list) -> None:
     for (path, lc, color, name), pts in zip(curves, xy):
         labels = _thin(to_scene(box, xa, ya, pts), [f"λ={la:.2g}" for la in lc.lambdas],
                        lc.corner, taken)
-        series.append(Series(path.split("/data/")[1], name, color, pts[:, 0], pts[:, 1],
+        series.append(Series(_rel(path), name, color, pts[:, 0], pts[:, 1],
                              size=3.0, labels=labels,
                              values={"lambda": np.asarray(lc.lambdas, float),
                                      "residual_norm": np.asarray(lc.residual_norm, float),
@@ -93,8 +93,12 @@ def _log_lcurve_plot(rec: rr.RecordingStream, curves: list) -> None:
 
 def _corner_name(path: str) -> str:
     """The corner's series: ``corner`` for the whole session, ``segment_<i>_corner``."""
-    return P.LCURVE_CORNER.split("/data/")[1] if path == P.LCURVE_POINTS else (
-        path.split("/data/")[1] + "_corner")
+    return _rel(P.LCURVE_CORNER) if path == P.LCURVE_POINTS else _rel(path) + "_corner"
+
+
+def _rel(path: str) -> str:
+    """A series' path below the plot (what :class:`Series` takes)."""
+    return path.removeprefix(P.LCURVE + "/")
 
 
 def _label_box(centre: np.ndarray, label: str, radius: float

@@ -38,13 +38,14 @@ GRAVITY_ANGLE_BEFORE = "gravity_angle/before"  # deg between measured and predic
 GRAVITY_ANGLE_AFTER = "gravity_angle/after"
 
 # 2D plots (static, Spatial2DView, :mod:`viewer.plot2d`): a plot's frame at <plot>/frame, its
-# series at <plot>/data/<series> as Points2D at the data's own (x, y) (log10 of the value on a
-# log axis) with AnyValues holding the values themselves, its legend at <plot>/legend.
+# series at <plot>/<series> as Points2D at the data's own (x, y) (log10 of the value on a log
+# axis, a Transform3D to the plot's scene) with AnyValues holding the values themselves, its
+# legend at <plot>/legend.
 
 
 def series(plot: str, name: str) -> str:
     """A series of a 2D plot: Points2D (and LineStrips2D) in data coordinates."""
-    return f"{plot}/data/{name}"
+    return f"{plot}/{name}"
 
 
 # The L-curve: x = log10 rho, y = log10 eta; AnyValues lambda, residual_norm, solution_norm

@@ -5,8 +5,8 @@ always plots against the time cursor's timeline, so such a view opens empty on `
 A plot is an entity tree under ``base``:
 
 - ``base/frame``: axes, grid, tick marks and tick labels, in scene units;
-- ``base/data``: a ``Transform3D`` from data coordinates to scene units; under it one entity
-  per series, ``Points2D`` (and a ``LineStrips2D``) at the data's own ``(x, y)``, so a script
+- ``base/<series>``: one entity per series, ``Points2D`` (and a ``LineStrips2D``) at the data's
+  own ``(x, y)`` with its own ``Transform3D`` from data coordinates to scene units, so a script
   reads the numbers back as logged (x is log10 of the value on a log axis);
 - ``base/legend``: each series' name beside the end of its curve, nudged apart.
 
@@ -216,17 +216,19 @@ def _legend_places(ends: np.ndarray, top: float, bottom: float) -> np.ndarray:
 
 def log_plot(rec: rr.RecordingStream, base: str, box: Box, xa: Axis, ya: Axis,
              series: Sequence[Series], marks: Sequence[Mark] = (), legend: bool = True) -> None:
-    """The frame, the series (in data coordinates under a transform), marks and legend."""
+    """The frame, the series (in data coordinates, each with its transform to the scene),
+    marks and legend."""
     log_frame(rec, base, box, xa, ya)
     scale, shift = _scene(box, xa, ya)
-    rec.log(f"{base}/data", rr.Transform3D(translation=[shift[0], shift[1], 0.0],
-                                           scale=[scale[0], scale[1], 1.0]), static=True)
+    to_box = rr.Transform3D(translation=[shift[0], shift[1], 0.0],
+                            scale=[scale[0], scale[1], 1.0])
     ends, names, colors = [], [], []
     for s in series:
         xy = np.column_stack([s.x, s.y]).astype(float)
         ok = np.all(np.isfinite(xy), axis=1)
-        path = f"{base}/data/{s.path}"
+        path = f"{base}/{s.path}"
         extra = [rr.AnyValues(**s.values)] if s.values else []
+        rec.log(path, to_box, static=True)
         rec.log(path, rr.Points2D(xy, colors=rgba([s.color]),
                                   radii=rr.Radius.ui_points(s.size), labels=s.labels,
                                   show_labels=s.labels is not None, draw_order=20.0),
