@@ -71,6 +71,11 @@ def _with_lanes(*views: rrb.Container | rrb.View, shares: list[float] | None = N
     return rrb.Vertical(*views, _lanes(), row_shares=[*shares, lanes], **kw)
 
 
+def _row(*views: rrb.Container | rrb.View) -> rrb.Container | rrb.View:
+    """Views side by side; one view alone (the viewer would fold a container of one)."""
+    return views[0] if len(views) == 1 else rrb.Horizontal(*views)
+
+
 def _gravity3d(name: str) -> rrb.Spatial3DView:
     return rrb.Spatial3DView(
         name=name, origin=P.GRAVITY, contents=[f"{P.GRAVITY}/**"],
@@ -132,31 +137,35 @@ def _signals(result: Result | None, gyro: bool) -> rrb.Vertical:
                              P.GYRO_CALIBRATED)))
     else:
         grid = rrb.Vertical(*acc)
+    detector_range = None if result is None else robust_range(np.append(
+        np.log10(result.detection.statistic[result.detection.statistic > 0]),
+        np.log10(result.detection.threshold)), q=0.0)
     detector = _ts("Static detector (M1): log10 statistic (blue) and threshold (red)",
-                   P.DETECTOR_STATISTIC, P.DETECTOR_THRESHOLD)
-    return _with_lanes(grid, detector, shares=[2.4, 1.0], name="Signals")
+                   P.DETECTOR_STATISTIC, P.DETECTOR_THRESHOLD, y_range=detector_range)
+    return _with_lanes(grid, detector, shares=[1.8, 1.0], name="Signals")
 
 
 def _gravity(result: Result | None, gyro: bool) -> rrb.Container:
     before = result is None or result.quality.block_norm_error_before_mg is not None
-    norm = [_ts("Static block norm error |mean a|/g − 1 (mg): before (red) vs after (blue)"
-                if before else "Static block norm error |mean a|/g − 1 (mg), calibrated",
+    # Short titles: a view's title is cut at its width (half of a half of the window here).
+    norm = [_ts("Block |ā|/g − 1 (mg): before red, after blue"
+                if before else "Block |ā|/g − 1 (mg), calibrated",
                 P.BLOCK_ERROR_BEFORE, P.BLOCK_ERROR_AFTER)]
     if before:
-        norm.append(_ts("Static block norm error after calibration (mg)", P.BLOCK_ERROR_AFTER))
+        norm.append(_ts("Block |ā|/g − 1 after (mg)", P.BLOCK_ERROR_AFTER))
     if not gyro:
-        return _with_lanes(rrb.Horizontal(*norm), name="Gravity")
+        return _with_lanes(_row(*norm), name="Gravity")
     angle_before = result is None or any(
         s.gyro is not None and s.gyro.u_pred_before is not None for s in result.segments)
-    angle = [_ts("Gravity prediction error per rotation (deg): before (red) vs after (blue)"
-                 if angle_before else "Gravity prediction error per rotation (deg), calibrated",
+    angle = [_ts("Rotation error (deg): before red, after blue"
+                 if angle_before else "Rotation error (deg), calibrated",
                  P.GRAVITY_ANGLE_BEFORE, P.GRAVITY_ANGLE_AFTER)]
     if angle_before:
-        angle.append(_ts("Gravity prediction error after calibration (deg)", P.GRAVITY_ANGLE_AFTER))
+        angle.append(_ts("Rotation error after (deg)", P.GRAVITY_ANGLE_AFTER))
     return rrb.Horizontal(
-        _gravity3d("Gravity at the cursor: measured green, predicted by raw gyro red, by "
-                   "calibrated gyro blue, previous grey"),
-        _with_lanes(rrb.Horizontal(*angle), rrb.Horizontal(*norm)),
+        _gravity3d("Gravity: measured green, previous grey, predicted red (raw gyro), "
+                   "blue (calibrated)"),
+        _with_lanes(_row(*angle), _row(*norm)),
         column_shares=[1, 1], name="Gravity")
 
 
