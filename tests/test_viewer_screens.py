@@ -317,9 +317,14 @@ def test_web_viewer_clicks_through_every_tab_in_chromium(chromium_path, recordin
                     stderr=open(tmp_path / "server.log", "w"), text=True)  # noqa: SIM115
     chrome = None
     try:
-        line = server.stdout.readline()
-        match = re.search(r"http://127\.0\.0\.1:\d+/\S*", line)
-        assert match, f"no URL in {line!r}"
+        lines: list[str] = []
+        match = None
+        while match is None and len(lines) < 20:  # the URL the launcher prints, first or soon
+            lines.append(server.stdout.readline())
+            if not lines[-1]:
+                break
+            match = re.search(r"http://127\.0\.0\.1:\d+/\S*", lines[-1])
+        assert match, f"no URL in {lines!r}"
         _wait(lambda: _http_ok(f"http://127.0.0.1:{web_port}/"), 30, "the web viewer's server")
         chrome = DevTools(chromium_path, tmp_path / "profile", tmp_path / "chromium.log",
                           WIDTH, HEIGHT)

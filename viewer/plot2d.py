@@ -203,7 +203,7 @@ def _legend_places(ends: np.ndarray, top: float, bottom: float) -> np.ndarray:
     where they fit: a forward then a backward sweep over the sorted ends."""
     order = np.argsort(ends, kind="stable")
     y = np.clip(ends[order], top, bottom).astype(float)
-    gap = min(LABEL_PX, (bottom - top) / max(len(y) - 1, 1))
+    gap = min(LABEL_PX + 3.0, (bottom - top) / max(len(y) - 1, 1))  # boxes drawn ~19 px
     for i in range(1, len(y)):
         y[i] = max(y[i], y[i - 1] + gap)
     y[-1:] = np.minimum(y[-1:], bottom)
