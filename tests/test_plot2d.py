@@ -57,3 +57,13 @@ def test_point_labels_never_overlap_and_leave_the_corner_its_own():
 def test_legend_places_for_few_names(n):
     y = _legend_places(np.arange(n, dtype=float), 0.0, 100.0)
     assert len(y) == n and np.all((y >= 0) & (y <= 100))
+
+
+def test_one_spike_does_not_set_the_magnitude_plots_range():
+    from viewer.blueprint import robust_range
+
+    rng = np.random.default_rng(0)
+    v = np.concatenate([1.0 + 0.03 * rng.standard_normal(20_000), [9.0], [np.nan]])
+    lo, hi = robust_range(v)
+    assert 0.85 < lo < 0.95 and 1.05 < hi < 1.15  # the raw and calibrated lines stay apart
+    assert robust_range(np.full(10, 1.0)) is None  # flat: the viewer's own range
