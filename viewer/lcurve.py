@@ -1,5 +1,7 @@
-"""The L-curve tab's entities: each fit's L-curve as a 2D plot (static), and the whole-session
-sweep on the ``lambda`` timeline, read from :class:`~imucal.stages.accel.LambdaSweep`."""
+"""The L-curve tab's entities, all 2D plots (:mod:`viewer.plot2d`): each fit's L-curve with
+its corner, and what each lambda of the whole-session sweep gives (static norm error and the
+9 accelerometer parameters against lambda), read from :class:`~imucal.stages.accel.LCurve`
+and :class:`~imucal.stages.accel.LambdaSweep` (method.md M3)."""
 
 from __future__ import annotations
 
@@ -11,25 +13,25 @@ import rerun as rr
 from imucal.models import ACC_PARAM_NAMES
 
 from . import paths as P
-from .columns import (
-    CALIBRATED,
-    CORNER,
-    GREY,
-    MEASURED,
-    PREVIOUS,
-    RAW,
-    SEGMENT_COLORS,
-    XYZ,
-    log10_axis,
-    rgba,
-    send_scalars,
-    style_lines,
-    style_points,
+from .columns import CALIBRATED, CORNER, RAW, SEGMENT_COLORS, XYZ, log10_axis
+from .layout import LCURVE_BOX, SWEEP_BOX
+from .plot2d import (
+    LABEL_DROP,
+    LABEL_PX,
+    TEXT,
+    Axis,
+    Mark,
+    Series,
+    label_width,
+    linear_axis,
+    log_axis,
+    log_plot,
+    text,
+    to_scene,
 )
 
 if TYPE_CHECKING:
     from imucal.result import Result
-    from imucal.stages.accel import LCurve
 
 
 def log_lcurves(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
@@ -37,138 +39,128 @@ def log_lcurves(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -
     lc = whole.lcurve
     if lc is None:
         return
-    several = len(result.segments) > 1
-    pts = [_log_one_lcurve(rec, P.LCURVE, lc, CALIBRATED, "whole session" if several else None)]
-    if several:
-        for seg in result.segments:
-            if seg.acc.lcurve is not None:
-                color = SEGMENT_COLORS[(seg.index + 1) % len(SEGMENT_COLORS)]
-                pts.append(_log_one_lcurve(rec, P.lcurve_segment(seg.index), seg.acc.lcurve,
-                                           color, f"segment {seg.index}"))
-    allpts = np.vstack(pts)
-    if len(allpts):
-        _log_frame(rec, allpts)
+    curves = [(P.LCURVE_POINTS, lc, CALIBRATED, "whole session")]
+    if len(result.segments) > 1:
+        curves += [(P.lcurve_segment(s.index), s.acc.lcurve,
+                    SEGMENT_COLORS[(s.index + 1) % len(SEGMENT_COLORS)], f"segment {s.index}")
+                   for s in result.segments if s.acc.lcurve is not None]
+    _log_lcurve_plot(rec, curves)
     if whole.sweep is not None:
-        _log_sweep(result, rec, rows)
+        _log_sweep(result, rec)
 
 
-def _log_sweep(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
-    """What each lambda would have given, on the ``lambda`` timeline."""
-    lc, sweep = result.whole.lcurve, result.whole.sweep
-    idx = np.arange(len(lc.lambdas))
-    rms = sweep.static_norm_rms_mg
-    params = sweep.params
-    series = {
-        P.LAMBDA_LOG10: (log10_axis(lc.lambdas), ["log10 λ"], [PREVIOUS]),
-        P.LAMBDA_STATIC_RMS: (rms, ["static norm error RMS (mg)"], [CALIBRATED]),
-        P.LAMBDA_STATIC_MAX: (sweep.static_norm_max_mg, ["static norm error max |.| (mg)"],
-                              [RAW]),
-        P.LAMBDA_RESIDUAL: (log10_axis(lc.residual_norm), ["log10 ρ (residual norm)"], [RAW]),
-        P.LAMBDA_SOLUTION: (log10_axis(lc.solution_norm), ["log10 η (solution norm)"],
-                            [MEASURED]),
-        P.LAMBDA_MISALIGNMENT: (params[:, 0:3], [f"{n} (rad)" for n in ACC_PARAM_NAMES[0:3]],
-                                XYZ),
-        P.LAMBDA_SCALE: (params[:, 3:6], list(ACC_PARAM_NAMES[3:6]), XYZ),
-        P.LAMBDA_BIAS: (params[:, 6:9], [f"{n} ({result.session.acc_unit})"
-                                         for n in ACC_PARAM_NAMES[6:9]], XYZ),
-    }
-    for path, (v, names, colors) in series.items():
-        rows[path] = send_scalars(rec, path, idx, v, timeline=P.LAMBDA)
-        style_lines(rec, path, names, colors)
-    c = lc.corner
-    if 0 <= c < len(idx):
-        rows[P.LAMBDA_CHOSEN] = send_scalars(rec, P.LAMBDA_CHOSEN, idx[c:c + 1], rms[c:c + 1],
-                                             timeline=P.LAMBDA)
-        style_points(rec, P.LAMBDA_CHOSEN, [f"chosen λ = {lc.lambdas[c]:.3g}"], [CORNER],
-                     size=8.0, marker="diamond")
+# --- the L-curve -------------------------------------------------------------------------------
 
 
-# --- the 2D plot: positions, labels and axes are drawing, not results ------------------------
+def _log_lcurve_plot(rec: rr.RecordingStream, curves: list) -> None:
+    """rho against eta, both log10 (y up: eta grows upwards), each point labelled with its
+    lambda where the label has room, each corner in red with its own label (placed first)."""
+    box = LCURVE_BOX
+    xy = [np.column_stack([log10_axis(lc.residual_norm), log10_axis(lc.solution_norm)])
+          for _, lc, _, _ in curves]
+    allxy = np.vstack(xy)
+    xa, ya = log_axis(allxy[:, 0]), log_axis(allxy[:, 1])
+    taken: list[tuple[float, float, float, float]] = []  # label boxes already placed
+    corners = []
+    for (path, lc, _, name), pts in zip(curves, xy):
+        c = lc.corner
+        if 0 <= c < len(lc.lambdas) and np.all(np.isfinite(pts[c])):
+            label = ("" if len(curves) == 1 else f"{name}: ") + f"corner λ = {lc.lambdas[c]:.3g}"
+            taken.append(_label_box(to_scene(box, xa, ya, pts[c:c + 1])[0], label, 7.0))
+            corners.append(Series(
+                _corner_name(path),
+                "", CORNER, pts[c:c + 1, 0], pts[c:c + 1, 1], line=False, size=7.0,
+                labels=[label], values={"lambda": float(lc.lambdas[c]), "index": int(c),
+                                        "residual_norm": float(lc.residual_norm[c]),
+                                        "solution_norm": float(lc.solution_norm[c])}))
+    series = []
+    for (path, lc, color, name), pts in zip(curves, xy):
+        labels = _thin(to_scene(box, xa, ya, pts), [f"λ={la:.2g}" for la in lc.lambdas],
+                       lc.corner, taken)
+        series.append(Series(_rel(path), name, color, pts[:, 0], pts[:, 1],
+                             size=3.0, labels=labels,
+                             values={"lambda": np.asarray(lc.lambdas, float),
+                                     "residual_norm": np.asarray(lc.residual_norm, float),
+                                     "solution_norm": np.asarray(lc.solution_norm, float)}))
+    log_plot(rec, P.LCURVE, box, xa, ya, series + corners, legend=len(curves) > 1)
+    title_x = "residual norm ρ = |r_data|  (log scale) →"
+    title_y = "↑ solution norm η = |θ − θ0|  (log scale)"
+    text(rec, f"{P.LCURVE}/frame/titles",
+         [[box.width / 2, box.height + 40], [label_width(title_y) / 2 - box.left + 6,
+                                             -box.top + LABEL_PX / 2]],
+         [title_x, title_y], [TEXT])
 
 
-def _lcurve_xy(lc: LCurve) -> np.ndarray:
-    """L-curve points in the 2D view: (log10 rho, -log10 eta), y negated to draw eta upwards."""
-    return np.column_stack([log10_axis(lc.residual_norm), -log10_axis(lc.solution_norm)])
+def _corner_name(path: str) -> str:
+    """The corner's series: ``corner`` for the whole session, ``segment_<i>_corner``."""
+    return _rel(P.LCURVE_CORNER) if path == P.LCURVE_POINTS else _rel(path) + "_corner"
 
 
-def _thin_labels(xy: np.ndarray, labels: list[str], keep: int, min_dist: float) -> list[str]:
-    """Blank the labels of points closer than ``min_dist`` to a labelled one (small lambdas
-    pile up at one end of the curve), always keeping the label at index ``keep``."""
+def _rel(path: str) -> str:
+    """A series' path below the plot (what :class:`Series` takes)."""
+    return path.removeprefix(P.LCURVE + "/")
+
+
+def _label_box(centre: np.ndarray, label: str, radius: float
+               ) -> tuple[float, float, float, float]:
+    """Where a point's label is drawn (x0, y0, x1, y1, scene units): centred below it."""
+    x, y = float(centre[0]), float(centre[1]) + LABEL_DROP + max(radius - 3.0, 0.0)
+    half = label_width(label) / 2
+    return (x - half, y - LABEL_PX / 2, x + half, y + LABEL_PX / 2)
+
+
+def _overlaps(a: tuple, b: tuple, gap: float = 2.0) -> bool:
+    return not (a[2] + gap <= b[0] or b[2] + gap <= a[0] or a[3] + gap <= b[1]
+                or b[3] + gap <= a[1])
+
+
+def _thin(scene: np.ndarray, labels: list[str], skip: int, taken: list) -> list[str]:
+    """The labels that fit: from the large-lambda end (where points spread out) each label is
+    kept when its box overlaps no label already placed (``taken``, which it extends; the
+    corner's is placed first). ``skip`` (the corner) is never labelled here."""
     out = [""] * len(labels)
-    shown: list[np.ndarray] = [xy[keep]] if 0 <= keep < len(xy) else []
-    for i in range(len(xy) - 1, -1, -1):  # from the large-lambda end, where points spread
-        if i == keep:
+    for i in range(len(labels) - 1, -1, -1):
+        if i == skip or not np.all(np.isfinite(scene[i])):
             continue
-        if all(np.hypot(*(xy[i] - p)) >= min_dist for p in shown):
+        b = _label_box(scene[i], labels[i], 3.0)
+        if not any(_overlaps(b, t) for t in taken):
             out[i] = labels[i]
-            shown.append(xy[i])
+            taken.append(b)
     return out
 
 
-def _log_one_lcurve(rec: rr.RecordingStream, base: str, lc: LCurve, color: int,
-                    name: str | None) -> np.ndarray:
-    xy = _lcurve_xy(lc)
-    ok = np.all(np.isfinite(xy), axis=1)
-    lams = np.asarray(lc.lambdas, float)
-    corner = lc.corner if 0 <= lc.corner < len(lams) and ok[lc.corner] else -1
-    pts, lam_ok = xy[ok], lams[ok]
-    keep = int(np.count_nonzero(ok[:corner])) if corner >= 0 else -1
-    span = float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0
-    labels = _thin_labels(pts, [f"λ={la:.2g}" for la in lam_ok], keep, 0.06 * span)
-    if keep >= 0:
-        labels[keep] = ""  # the corner has its own, larger label
-    rec.log(f"{base}/points",
-            rr.Points2D(pts, labels=labels, colors=rgba([color]),
-                        radii=rr.Radius.ui_points(3.0), show_labels=True, draw_order=20.0),
-            rr.AnyValues(**{"lambda": lam_ok}), static=True)
-    rec.log(f"{base}/line", rr.LineStrips2D([pts], colors=rgba([color]),
-                                            labels=None if name is None else [name],
-                                            radii=rr.Radius.ui_points(1.5), draw_order=10.0),
-            static=True)
-    if corner >= 0:
-        c = corner
-        prefix = "" if name is None else f"{name}: "
-        rec.log(f"{base}/corner",
-                rr.Points2D(xy[c:c + 1], labels=[f"{prefix}corner λ = {lams[c]:.3g}"],
-                            colors=rgba([CORNER]), radii=rr.Radius.ui_points(7.0),
-                            show_labels=True, draw_order=30.0),
-                rr.AnyValues(**{"lambda": float(lams[c]), "index": int(c),
-                                "residual_norm": float(lc.residual_norm[c]),
-                                "solution_norm": float(lc.solution_norm[c])}),
-                static=True)
-    return pts
+# --- the sweep ---------------------------------------------------------------------------------
 
 
-def _ticks(lo: float, hi: float) -> np.ndarray:
-    for step in (1.0, 0.5, 0.25, 0.1, 0.05):
-        ticks = np.arange(np.ceil(lo / step) * step, hi + 1e-9, step)
-        if len(ticks) >= 3:
-            return ticks
-    return np.array([lo, hi])
+def _log_sweep(result: Result, rec: rr.RecordingStream) -> None:
+    """What each lambda would have given, against log10 lambda, the chosen one marked."""
+    lc, sweep = result.whole.lcurve, result.whole.sweep
+    lam = np.asarray(lc.lambdas, float)
+    x = log10_axis(lam)
+    xa = log_axis(x)
+    c = lc.corner if 0 <= lc.corner < len(lam) else -1
+    mark = [Mark(float(x[c]), f"corner λ = {lam[c]:.3g}", CORNER)] if c >= 0 else []
+    rms, worst = sweep.static_norm_rms_mg, sweep.static_norm_max_mg
+    y = {"rms": log10_axis(rms), "max": log10_axis(worst)}
+    static = [Series("rms", "RMS", CALIBRATED, x, y["rms"], values={"lambda": lam, "mg": rms}),
+              Series("max", "max |.|", RAW, x, y["max"], values={"lambda": lam, "mg": worst})]
+    if c >= 0:
+        static.append(Series("chosen", "", CORNER, x[c:c + 1], y["rms"][c:c + 1], line=False,
+                             size=5.0, values={"lambda": float(lam[c]), "mg": float(rms[c])}))
+    log_plot(rec, P.LAMBDA_STATIC, SWEEP_BOX, xa, log_axis(np.concatenate(list(y.values()))),
+             static, mark)
+    unit = result.session.acc_unit
+    params = sweep.params
+    for plot, cols, suffix in ((P.LAMBDA_MISALIGNMENT, slice(0, 3), " (rad)"),
+                               (P.LAMBDA_SCALE, slice(3, 6), ""),
+                               (P.LAMBDA_BIAS, slice(6, 9), f" ({unit})")):
+        names = ACC_PARAM_NAMES[cols]
+        _log_params(rec, plot, xa, x, params[:, cols], names, suffix,
+                    {"lambda": lam}, [Mark(m.x, "", m.color) for m in mark])
 
 
-def _log_frame(rec: rr.RecordingStream, xy: np.ndarray) -> None:
-    """Axes with decade ticks: a Spatial2DView has none of its own."""
-    x0, x1 = float(xy[:, 0].min()), float(xy[:, 0].max())
-    y0, y1 = float(xy[:, 1].min()), float(xy[:, 1].max())
-    span = max(x1 - x0, y1 - y0, 0.2)
-    pad = 0.08 * span
-    left, right, top, bottom = x0 - pad, x1 + pad, y0 - pad, y1 + pad
-    xt = _ticks(left, right)
-    yt = _ticks(-bottom, -top)  # log10 eta values
-    strips = [[[left, bottom], [right, bottom]], [[left, bottom], [left, top]]]
-    tick = 0.015 * span
-    strips += [[[x, bottom], [x, bottom + tick]] for x in xt]
-    strips += [[[left, -y], [left - tick, -y]] for y in yt]
-    rec.log(f"{P.LCURVE_FRAME}/axes", rr.LineStrips2D(strips, colors=rgba([GREY]),
-                                                      radii=rr.Radius.ui_points(1.0),
-                                                      draw_order=1.0), static=True)
-    pos = [[x, bottom + 3 * tick] for x in xt] + [[left - 3 * tick, -y] for y in yt]
-    lab = [f"{10**x:.2g}" for x in xt] + [f"{10**y:.2g}" for y in yt]
-    pos += [[(left + right) / 2, bottom + 7 * tick], [left, top - 3 * tick]]
-    lab += ["residual norm ρ = |r_data|  (log scale) →",
-            "↑ solution norm η = |θ − θ0|  (log scale)"]
-    rec.log(f"{P.LCURVE_FRAME}/labels", rr.Points2D(pos, labels=lab, colors=rgba([GREY]),
-                                                    radii=rr.Radius.ui_points(0.5),
-                                                    show_labels=True, draw_order=2.0),
-            static=True)
+def _log_params(rec: rr.RecordingStream, plot: str, xa: Axis, x: np.ndarray, v: np.ndarray,
+                names: tuple[str, ...], suffix: str, values: dict, marks: list[Mark]) -> None:
+    series = [Series(n, f"{n}{suffix}", col, x, v[:, i], values=values, size=2.0)
+              for i, (n, col) in enumerate(zip(names, XYZ))]
+    log_plot(rec, plot, SWEEP_BOX, xa, linear_axis(v), series, marks)

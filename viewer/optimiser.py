@@ -1,6 +1,7 @@
-"""The Optimiser tab's entities: cost and raw-unit parameters at each accepted step of every
-fit, on the ``iteration`` timeline (``AccFit.trace_params``, ``GyroFit.trace_params`` and
-``trace_bias``, from what the optimiser's report records)."""
+"""The Optimiser tab's entities: per sensor, 2D plots (:mod:`viewer.plot2d`) of the cost and the
+raw-unit parameters at each accepted step of every fit, against the step
+(``AccFit.trace_params``, ``GyroFit.trace_params`` and ``trace_bias``, from what the
+optimiser's report records)."""
 
 from __future__ import annotations
 
@@ -12,59 +13,80 @@ import rerun as rr
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES
 
 from . import paths as P
-from .columns import (
-    CALIBRATED,
-    SEGMENT_COLORS,
-    XYZ,
-    log10_axis,
-    send_scalars,
-    style_lines,
-    style_points,
-)
+from .columns import CALIBRATED, SEGMENT_COLORS, XYZ, log10_axis
+from .layout import TRACE_BOX, TRACE_BOX_WIDE
+from .plot2d import Series, linear_axis, log_axis, log_plot, step_axis
 
 if TYPE_CHECKING:
     from imucal.result import Result
-    from imucal.stages.accel import AccFit
-    from imucal.stages.gyro import GyroFit
+
+WHATS = ("log10_cost", "misalignment", "scale", "bias")
+
+
+def fits(result: Result) -> list[tuple[str, object, object]]:
+    """(name, accelerometer fit, gyroscope fit or None) of every fit the optimiser ran: the
+    first whole-session fit when it is not segment 0's, then each segment's."""
+    out = []
+    if len(result.segments) > 1 or result.segments[0].acc is not result.whole:
+        out.append(("whole", result.whole, None))
+    out += [(f"segment_{s.index}", s.acc, s.gyro) for s in result.segments]
+    return out
 
 
 def log_iterations(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
-    if len(result.segments) > 1 or result.segments[0].acc is not result.whole:
-        _log_acc(rec, rows, result.whole, "whole")
-    for seg in result.segments:
-        _log_acc(rec, rows, seg.acc, f"segment_{seg.index}")
-        if seg.gyro is not None:
-            _log_gyro(rec, rows, seg.gyro, f"segment_{seg.index}")
+    runs = fits(result)
+    gyro = any(g is not None for _, _, g in runs)
+    box = TRACE_BOX if gyro else TRACE_BOX_WIDE
+    acc = {name: _acc_traces(a) for name, a, _ in runs if len(a.report.trace_cost)}
+    _log_sensor(rec, "accelerometer", acc, box, result.session.acc_unit)
+    if gyro:
+        traces = {name: _gyro_traces(g) for name, _, g in runs
+                  if g is not None and len(g.report.trace_cost)}
+        _log_sensor(rec, "gyroscope", traces, box, result.session.gyro_unit)
 
 
-def _log_acc(rec: rr.RecordingStream, rows: dict[str, int], fit: AccFit, name: str) -> None:
-    if len(fit.report.trace_cost) == 0:
-        return
+def _acc_traces(fit) -> dict[str, tuple[np.ndarray, tuple[str, ...]]]:
     p = fit.trace_params
-    _log_trace(rec, rows, name, "accelerometer", fit.report.trace_cost,
-               {"misalignment": (p[:, 0:3], ACC_PARAM_NAMES[0:3]),
-                "scale": (p[:, 3:6], ACC_PARAM_NAMES[3:6]),
-                "bias": (p[:, 6:9], ACC_PARAM_NAMES[6:9])})
+    return {"log10_cost": (np.asarray(fit.report.trace_cost, float)[:, None], ("cost",)),
+            "misalignment": (p[:, 0:3], ACC_PARAM_NAMES[0:3]),
+            "scale": (p[:, 3:6], ACC_PARAM_NAMES[3:6]),
+            "bias": (p[:, 6:9], ACC_PARAM_NAMES[6:9])}
 
 
-def _log_gyro(rec: rr.RecordingStream, rows: dict[str, int], fit: GyroFit, name: str) -> None:
-    if len(fit.report.trace_cost) == 0:
-        return
+def _gyro_traces(fit) -> dict[str, tuple[np.ndarray, tuple[str, ...]]]:
     p = fit.trace_params
-    _log_trace(rec, rows, name, "gyroscope", fit.report.trace_cost,
-               {"misalignment": (p[:, 0:6], GYRO_PARAM_NAMES[0:6]),
-                "scale": (p[:, 6:9], GYRO_PARAM_NAMES[6:9]),
-                "bias": (fit.trace_bias, ("b_x", "b_y", "b_z"))})
+    return {"log10_cost": (np.asarray(fit.report.trace_cost, float)[:, None], ("cost",)),
+            "misalignment": (p[:, 0:6], GYRO_PARAM_NAMES[0:6]),
+            "scale": (p[:, 6:9], GYRO_PARAM_NAMES[6:9]),
+            "bias": (fit.trace_bias, ("b_x", "b_y", "b_z"))}
 
 
-def _log_trace(rec: rr.RecordingStream, rows: dict[str, int], fit: str, sensor: str,
-               cost: np.ndarray, params: dict[str, tuple[np.ndarray, tuple[str, ...]]]) -> None:
-    idx = np.arange(len(cost))
-    series = {"log10_cost": (log10_axis(cost), ("log10 cost",)), **params}
-    for what, (v, names) in series.items():
-        path = P.iteration(fit, sensor, what)
-        rows[path] = send_scalars(rec, path, idx, v, timeline=P.ITERATION)
-        colors = (XYZ if len(names) == 3 else
-                  [CALIBRATED] if len(names) == 1 else SEGMENT_COLORS[: len(names)])
-        style_lines(rec, path, list(names), colors)
-        style_points(rec, path, list(names), colors, size=3.0)
+def _log_sensor(rec: rr.RecordingStream, sensor: str, traces: dict, box, unit: str) -> None:
+    """One plot per quantity; every fit's trace in it (named by fit when there are several)."""
+    if not traces:
+        return
+    several = len(traces) > 1
+    n = max(len(t["log10_cost"][0]) for t in traces.values())
+    xa = step_axis(n)
+    for what in WHATS:
+        series, ys = [], []
+        for k, (fit, t) in enumerate(traces.items()):
+            v, names = t[what]
+            y = log10_axis(v) if what == "log10_cost" else v
+            ys.append(y)
+            for i, name in enumerate(names):
+                if len(names) == 1:
+                    color = SEGMENT_COLORS[k % len(SEGMENT_COLORS)] if several else CALIBRATED
+                else:
+                    color = (XYZ if len(names) == 3 else SEGMENT_COLORS)[i]
+                label = f"{fit.replace('segment_', 'seg ')} {name}" if several else name
+                label += {"bias": f" ({unit})", "misalignment": " (rad)"}.get(what, "")
+                values = {"step": np.arange(len(v))}
+                if what == "log10_cost":
+                    values["cost"] = v[:, 0]
+                series.append(Series(f"{fit}/{name}", label, color,
+                                     np.arange(len(v), dtype=float), y[:, i], values=values,
+                                     size=3.0))
+        yall = np.concatenate([y.ravel() for y in ys])
+        ya = log_axis(yall) if what == "log10_cost" else linear_axis(yall)
+        log_plot(rec, P.iteration(sensor, what), box, xa, ya, series)

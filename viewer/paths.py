@@ -8,10 +8,9 @@ from __future__ import annotations
 
 APPLICATION_ID = "imucal"
 
-# Timelines
+# Timeline: the only one. The L-curve sweep and the optimiser's steps are plotted against
+# their own axis (lambda, step) as 2D plots, so every view shows data on it.
 TIME = "time"  # duration, seconds on the session's own clock
-LAMBDA = "lambda"  # sequence: index into the L-curve's lambda grid (value in LAMBDA_LOG10)
-ITERATION = "iteration"  # sequence: accepted Levenberg-Marquardt step, 0 = the start
 
 # Signals on TIME
 ACC_MAGNITUDE = "imu/accelerometer/magnitude"  # [raw, calibrated], full rate when still
@@ -38,36 +37,50 @@ GRAVITY_PREDICTED_AFTER = "gravity/predicted_after"  # R_k^T u_(k-1), calibrated
 GRAVITY_ANGLE_BEFORE = "gravity_angle/before"  # deg between measured and predicted
 GRAVITY_ANGLE_AFTER = "gravity_angle/after"
 
-# L-curve (static, Spatial2DView): x = log10 rho, y = -log10 eta (2D views draw y down)
+# 2D plots (static, Spatial2DView, :mod:`viewer.plot2d`): a plot's frame at <plot>/frame, its
+# series at <plot>/<series> as Points2D at the data's own (x, y) (log10 of the value on a log
+# axis, a Transform3D to the plot's scene) with AnyValues holding the values themselves, its
+# legend at <plot>/legend.
+
+
+def series(plot: str, name: str) -> str:
+    """A series of a 2D plot: Points2D (and LineStrips2D) in data coordinates."""
+    return f"{plot}/{name}"
+
+
+# The L-curve: x = log10 rho, y = log10 eta; AnyValues lambda, residual_norm, solution_norm
 LCURVE = "lcurve"
-LCURVE_POINTS = "lcurve/points"
-LCURVE_LINE = "lcurve/line"
-LCURVE_CORNER = "lcurve/corner"  # Points2D + AnyValues(lambda, index, residual_norm, ...)
-LCURVE_FRAME = "lcurve/frame"  # axes and decade tick labels
+LCURVE_POINTS = series(LCURVE, "points")  # the whole-session fit's curve, labelled with lambda
+LCURVE_CORNER = series(LCURVE, "corner")  # Points2D + AnyValues(lambda, index, ...)
 
 
 def lcurve_segment(i: int) -> str:
     """A segment's own L-curve, logged only when the session has more than one segment."""
-    return f"lcurve/segment_{i}"
+    return series(LCURVE, f"segment_{i}")
 
 
-# Lambda sweep on LAMBDA (the whole-session fit's grid)
-LAMBDA_LOG10 = "lambda/log10_lambda"
-LAMBDA_STATIC_RMS = "lambda/static_norm_rms_mg"
-LAMBDA_STATIC_MAX = "lambda/static_norm_max_mg"
-LAMBDA_CHOSEN = "lambda/chosen"  # one row, at the corner: static_norm_rms_mg there
-LAMBDA_RESIDUAL = "lambda/log10_residual_norm"
-LAMBDA_SOLUTION = "lambda/log10_solution_norm"
-LAMBDA_MISALIGNMENT = "lambda/accelerometer/misalignment"  # [a_yz, a_zy, a_zx] rad
-LAMBDA_SCALE = "lambda/accelerometer/scale"  # [s_x, s_y, s_z]
-LAMBDA_BIAS = "lambda/accelerometer/bias"  # [b_x, b_y, b_z] raw unit
+# What each lambda of the whole-session sweep gives: x = log10 lambda, AnyValues lambda
+LAMBDA_STATIC = "lambda/static_norm_error_mg"  # y = log10 mg; AnyValues mg
+LAMBDA_STATIC_RMS = series(LAMBDA_STATIC, "rms")  # RMS over the still blocks
+LAMBDA_STATIC_MAX = series(LAMBDA_STATIC, "max")  # largest |block error|
+LAMBDA_CHOSEN = series(LAMBDA_STATIC, "chosen")  # one point, at the corner: RMS there
+LAMBDA_MISALIGNMENT = "lambda/misalignment"  # series a_yz, a_zy, a_zx (rad)
+LAMBDA_SCALE = "lambda/scale"  # series s_x, s_y, s_z
+LAMBDA_BIAS = "lambda/bias"  # series b_x, b_y, b_z (raw unit)
 
 
-def iteration(fit: str, sensor: str, what: str) -> str:
-    """Optimiser trace on ITERATION: ``fit`` is ``segment_<i>`` (or ``whole`` for the first
-    whole-session fit when it differs from segment 0), ``sensor`` ``accelerometer`` or
-    ``gyroscope``, ``what`` one of ``log10_cost``, ``misalignment``, ``scale``, ``bias``."""
-    return f"iteration/{fit}/{sensor}/{what}"
+def iteration(sensor: str, what: str) -> str:
+    """The optimiser's plot of ``what`` (``log10_cost``, ``misalignment``, ``scale``,
+    ``bias``) for ``sensor`` (``accelerometer`` or ``gyroscope``), x = accepted step (0 = the
+    start)."""
+    return f"iteration/{sensor}/{what}"
+
+
+def iteration_series(fit: str, sensor: str, what: str, param: str) -> str:
+    """One parameter's trace: ``fit`` is ``segment_<i>`` (or ``whole`` for the first
+    whole-session fit when it differs from segment 0); ``param`` a parameter name (``cost``
+    for ``log10_cost``, whose y is log10 of the cost)."""
+    return series(iteration(sensor, what), f"{fit}/{param}")
 
 
 # Results (static)

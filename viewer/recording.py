@@ -4,9 +4,12 @@ Everything is logged column-wise (``send_columns``, chunks of at most ``CHUNK_RO
 never sample by sample. The paths below are a contract: scripts read them back
 (:mod:`viewer.readback`); the constants live in :mod:`viewer.paths`.
 
-Timelines: ``time`` (duration, seconds on the session's clock), ``lambda`` (sequence: index
-into the whole-session fit's lambda grid), ``iteration`` (sequence: accepted optimiser step,
-0 = the start point). "static" rows carry no time and hold at every time.
+Timeline: ``time`` (duration, seconds on the session's clock), the only one. "static" rows
+carry no time and hold at every time. What runs against lambda or the optimiser's step is a 2D
+plot (:mod:`viewer.plot2d`): each series a static entity with ``Points2D`` at its data's own
+``(x, y)`` (log10 on a log axis), a ``Transform3D`` to the plot's scene and ``AnyValues``
+with the values themselves; the plot's axes at ``<plot>/frame``, its names at
+``<plot>/legend``.
 
 =========================================== ========== ============================================
 Entity path                                  Timeline   Content
@@ -51,36 +54,30 @@ gravity/predicted_before | predicted_after   time       Arrows3D ``R_k^T u_(k-1)
                                                         the direction is ``v / |v|``
 gravity_angle/before | after                 time       Scalars angle u_k to the prediction, deg,
                                                         at block k (k > 0)
-lcurve/points | line                         static     Points2D (labels: lambda, left blank where
-                                                        points crowd; AnyValues ``lambda``: every
-                                                        point's) / LineStrips2D at (log10 rho,
-                                                        -log10 eta) of the whole-session fit: y is
-                                                        negated so larger eta is drawn higher (2D
-                                                        views draw y downwards)
+lcurve/points                                static     Points2D at (log10 rho, log10 eta) of the
+                                                        whole-session fit (labels: lambda, blank
+                                                        where points crowd) + AnyValues lambda,
+                                                        residual_norm, solution_norm
 lcurve/corner                                static     Points2D + AnyValues(lambda, index,
                                                         residual_norm, solution_norm)
-lcurve/frame                                 static     axes and decade tick labels
-lcurve/segment_<i>/points | line | corner    static     each segment's own L-curve (only with more
+lcurve/segment_<i> | segment_<i>_corner      static     each segment's own L-curve (only with more
                                                         than one segment)
-lambda/log10_lambda                          lambda     Scalars
-lambda/static_norm_rms_mg | static_norm_max_mg lambda   Scalars RMS / max over static blocks of
-                                                        ``|mean a| / g - 1`` (mg) with the
-                                                        parameters solved at that lambda
-                                                        (``AccFit.sweep``: ``LambdaSweep``)
-lambda/chosen                                lambda     Scalars static_norm_rms_mg, one row at the
-                                                        L-curve corner
-lambda/log10_residual_norm | solution_norm   lambda     Scalars
-lambda/accelerometer/misalignment|scale|bias lambda     Scalars [3] each, raw-unit parameters
+lambda/static_norm_error_mg/rms | max        static     x log10 lambda, y log10 of the RMS / max
+                                                        over static blocks of ``|mean a| / g - 1``
+                                                        (mg) with the parameters solved at that
+                                                        lambda (``AccFit.sweep``: ``LambdaSweep``);
+                                                        AnyValues lambda, mg
+lambda/static_norm_error_mg/chosen           static     one point, at the L-curve corner
+lambda/misalignment|scale|bias/<param>       static     x log10 lambda, y the raw-unit parameter
                                                         (``LambdaSweep.params``)
-iteration/<fit>/<sensor>/log10_cost          iteration  Scalars; <fit> = segment_<i> (and
-                                                        ``whole`` when the first whole-session fit
-                                                        is not segment 0's), <sensor> =
-                                                        accelerometer | gyroscope
-iteration/<fit>/<sensor>/misalignment|scale|bias iteration Scalars, raw-unit parameters at
-                                                        each accepted step (gyroscope:
-                                                        misalignment has 6 angles):
-                                                        ``AccFit.trace_params``,
-                                                        ``GyroFit.trace_params``, ``trace_bias``
+iteration/<sensor>/<what>/<fit>/<param>      static     x accepted step (0 = the start), y the
+                                                        raw-unit parameter (``AccFit.trace_params``,
+                                                        ``GyroFit.trace_params``, ``trace_bias``);
+                                                        <what> log10_cost (param ``cost``, y log10,
+                                                        AnyValues cost) | misalignment | scale |
+                                                        bias; <fit> segment_<i> (and ``whole`` when
+                                                        the first whole-session fit is not segment
+                                                        0's); <sensor> accelerometer | gyroscope
 calibration/summary                          static     TextDocument (markdown): ``imucal.report``
                                                         (parameters with standard errors, quality,
                                                         warnings), as the CLI prints it

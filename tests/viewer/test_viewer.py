@@ -17,7 +17,7 @@ import pytest
 
 import imucal
 from imucal.cli import view_main as main
-from imucal.models import acc_theta, gyro_theta
+from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, acc_theta, gyro_theta
 from imucal.session import Session
 from imucal.synth import make_session
 from viewer import paths as P
@@ -46,6 +46,19 @@ def run(request, tmp_path_factory, sample_session_path) -> SimpleNamespace:
     return _record(result, tmp_path_factory.mktemp("rec") / "run.rrd")
 
 
+def _plotted(rrd, path: str) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A 2D plot's series: its points' x and y (as logged: log10 on a log axis) and the values
+    stored beside them."""
+    v = rb.values(rrd, path)
+    xy = np.reshape(np.asarray(v["Points2D:positions"], float), (-1, 2))
+    return xy[:, 0], xy[:, 1], v
+
+
+def _params(rrd, plot: str, names) -> np.ndarray:
+    """The y of each named series of a 2D plot, as columns."""
+    return np.column_stack([_plotted(rrd, P.series(plot, n))[1] for n in names])
+
+
 def _still_transitions(result) -> int:
     return sum(s.blocks[1] - s.blocks[0] - 1 for s in result.segments)
 
@@ -54,9 +67,6 @@ def test_every_entity_with_the_rows_logged(run):
     r = run.result
     s = r.session
     n_blocks = len(r.block_times)
-    lc = r.whole.lcurve
-    acc_trace = len(r.segments[0].acc.report.trace_cost)
-    gyro_trace = len(r.segments[0].gyro.report.trace_cost)
     k = _still_transitions(r)
     expected = {
         P.ACC_MAGNITUDE: len(s.t_acc), P.ACC_RAW: len(s.t_acc), P.ACC_CALIBRATED: len(s.t_acc),
@@ -67,23 +77,19 @@ def test_every_entity_with_the_rows_logged(run):
         P.BLOCK_ERROR_BEFORE: n_blocks, P.BLOCK_ERROR_AFTER: n_blocks,
         P.GRAVITY_MEASURED: n_blocks, P.GRAVITY_PREVIOUS: k, P.GRAVITY_PREDICTED_BEFORE: k,
         P.GRAVITY_PREDICTED_AFTER: k, P.GRAVITY_ANGLE_BEFORE: k, P.GRAVITY_ANGLE_AFTER: k,
-        P.LAMBDA_LOG10: len(lc.lambdas), P.LAMBDA_STATIC_RMS: len(lc.lambdas),
-        P.LAMBDA_STATIC_MAX: len(lc.lambdas), P.LAMBDA_RESIDUAL: len(lc.lambdas),
-        P.LAMBDA_SOLUTION: len(lc.lambdas), P.LAMBDA_MISALIGNMENT: len(lc.lambdas),
-        P.LAMBDA_SCALE: len(lc.lambdas), P.LAMBDA_BIAS: len(lc.lambdas), P.LAMBDA_CHOSEN: 1,
     }
-    for what in ("log10_cost", "misalignment", "scale", "bias"):
-        expected[P.iteration("segment_0", "accelerometer", what)] = acc_trace
-        expected[P.iteration("segment_0", "gyroscope", what)] = gyro_trace
     in_file = rb.entities(run.path)
     for path, n in expected.items():
         assert in_file.get(path) == n, path
     # What log_result reports having sent is what the file holds, entity by entity.
     assert {p: n for p, n in in_file.items() if n} == run.rows
     for static in (P.SUMMARY, P.INFO, P.QUALITY, P.calibration(0, "accelerometer"),
-                   P.calibration(0, "gyroscope"), P.LCURVE_POINTS, P.LCURVE_LINE,
-                   P.LCURVE_CORNER, P.GRAVITY_AXES):
-        assert static in in_file, static
+                   P.calibration(0, "gyroscope"), P.LCURVE_POINTS, P.LCURVE_CORNER,
+                   P.LAMBDA_STATIC_RMS, P.LAMBDA_STATIC_MAX, P.LAMBDA_CHOSEN,
+                   P.series(P.LAMBDA_SCALE, "s_x"),
+                   P.iteration_series("segment_0", "accelerometer", "log10_cost", "cost"),
+                   P.iteration_series("segment_0", "gyroscope", "bias", "b_z"), P.GRAVITY_AXES):
+        assert in_file.get(static) == 0, static  # static: drawn whatever the timeline
 
 
 def test_signals_are_the_sessions_own(run):
@@ -132,7 +138,7 @@ def test_lcurve_corner_is_the_chosen_lambda(run, tmp_path):
     assert corner["index"] == lc.corner
     xy = corner["Points2D:positions"]
     np.testing.assert_allclose(xy, [np.log10(lc.residual_norm[lc.corner]),
-                                    -np.log10(lc.solution_norm[lc.corner])], rtol=1e-6)
+                                    np.log10(lc.solution_norm[lc.corner])], rtol=1e-6)
     points = rb.values(run.path, P.LCURVE_POINTS)
     np.testing.assert_array_equal(points["lambda"], lc.lambdas)
     assert len(points["Points2D:positions"]) == len(points["Points2D:labels"]) == len(lc.lambdas)
@@ -142,36 +148,40 @@ def test_lcurve_corner_is_the_chosen_lambda(run, tmp_path):
 def test_lambda_sweep_agrees_with_the_calibration(run):
     r = run.result
     lc = r.whole.lcurve
-    idx, rms = rb.scalars(run.path, P.LAMBDA_STATIC_RMS, timeline=P.LAMBDA)
-    np.testing.assert_array_equal(idx, np.arange(len(lc.lambdas)))
+    x, y, v = _plotted(run.path, P.LAMBDA_STATIC_RMS)
+    np.testing.assert_array_equal(v["lambda"], lc.lambdas)
+    np.testing.assert_allclose(x, np.log10(lc.lambdas), rtol=1e-6)  # float32 positions
+    rms = np.asarray(v["mg"])
+    np.testing.assert_allclose(y, np.log10(rms), rtol=1e-5, atol=1e-6)
     # At the corner the sweep's parameters are the calibration's: same block errors, same K.
     expected = np.sqrt(np.mean(np.square(r.quality.block_norm_error_mg)))
     assert rms[lc.corner] == pytest.approx(expected, rel=1e-6, abs=1e-9)
-    chosen_idx, chosen = rb.scalars(run.path, P.LAMBDA_CHOSEN, timeline=P.LAMBDA)
-    assert list(chosen_idx) == [lc.corner] and chosen[0] == rms[lc.corner]
-    _, scale = rb.scalars(run.path, P.LAMBDA_SCALE, timeline=P.LAMBDA)
-    np.testing.assert_allclose(scale[lc.corner], r.whole.model.K, rtol=1e-12)
-    _, lam = rb.scalars(run.path, P.LAMBDA_LOG10, timeline=P.LAMBDA)
-    np.testing.assert_allclose(lam, np.log10(lc.lambdas))
+    chosen = rb.values(run.path, P.LAMBDA_CHOSEN)
+    assert chosen["lambda"] == lc.lambdas[lc.corner] and chosen["mg"] == rms[lc.corner]
+    scale = _params(run.path, P.LAMBDA_SCALE, ("s_x", "s_y", "s_z"))
+    np.testing.assert_allclose(scale[lc.corner], r.whole.model.K, rtol=1e-6)
 
 
 def test_iteration_traces_end_at_the_solution(run):
     r = run.result
     acc, gyro = r.segments[0].acc, r.segments[0].gyro
-    i, cost = rb.scalars(run.path, P.iteration("segment_0", "accelerometer", "log10_cost"),
-                         timeline=P.ITERATION)
-    np.testing.assert_array_equal(i, np.arange(len(acc.report.trace_cost)))
-    np.testing.assert_allclose(cost, np.log10(acc.report.trace_cost))
-    assert cost[-1] == pytest.approx(np.log10(acc.report.cost), abs=1e-9)
-    _, scale = rb.scalars(run.path, P.iteration("segment_0", "accelerometer", "scale"),
-                          timeline=P.ITERATION)
-    np.testing.assert_allclose(scale[-1], acc.model.K, rtol=1e-9)
-    _, gscale = rb.scalars(run.path, P.iteration("segment_0", "gyroscope", "scale"),
-                           timeline=P.ITERATION)
-    np.testing.assert_allclose(gscale[-1], gyro.model.K, rtol=1e-9)
-    _, gmis = rb.scalars(run.path, P.iteration("segment_0", "gyroscope", "misalignment"),
-                         timeline=P.ITERATION)
-    np.testing.assert_allclose(gmis[-1], gyro_theta(gyro.model)[:6], atol=1e-12)
+    x, y, v = _plotted(run.path, P.iteration_series("segment_0", "accelerometer", "log10_cost",
+                                                    "cost"))
+    np.testing.assert_array_equal(x, np.arange(len(acc.report.trace_cost)))
+    np.testing.assert_array_equal(v["step"], x)
+    np.testing.assert_array_equal(v["cost"], acc.report.trace_cost)
+    assert v["cost"][-1] == pytest.approx(acc.report.cost, rel=1e-12)
+    np.testing.assert_allclose(y, np.log10(acc.report.trace_cost), rtol=1e-6)
+    plot = P.iteration("accelerometer", "scale")
+    np.testing.assert_allclose(_params(run.path, plot,
+                                       [f"segment_0/{n}" for n in ("s_x", "s_y", "s_z")])[-1],
+                               acc.model.K, rtol=1e-6)  # float32 positions
+    gscale = _params(run.path, P.iteration("gyroscope", "scale"),
+                     [f"segment_0/{n}" for n in GYRO_PARAM_NAMES[6:9]])
+    np.testing.assert_allclose(gscale[-1], gyro.model.K, rtol=1e-6)
+    gmis = _params(run.path, P.iteration("gyroscope", "misalignment"),
+                   [f"segment_0/{n}" for n in GYRO_PARAM_NAMES[0:6]])
+    np.testing.assert_allclose(gmis[-1], gyro_theta(gyro.model)[:6], atol=1e-7)
 
 
 def test_parameters_and_quality_as_plain_values(run):
@@ -247,23 +257,24 @@ def test_rows_read_back_are_the_cores_arrays(run):
 
     sweep = r.whole.sweep
     for path, expected in ((P.LAMBDA_STATIC_RMS, sweep.static_norm_rms_mg),
-                           (P.LAMBDA_STATIC_MAX, sweep.static_norm_max_mg),
-                           (P.LAMBDA_MISALIGNMENT, sweep.params[:, 0:3]),
-                           (P.LAMBDA_SCALE, sweep.params[:, 3:6]),
-                           (P.LAMBDA_BIAS, sweep.params[:, 6:9])):
-        _, v = rb.scalars(run.path, path, timeline=P.LAMBDA)
-        np.testing.assert_array_equal(v, expected, err_msg=path)
+                           (P.LAMBDA_STATIC_MAX, sweep.static_norm_max_mg)):
+        np.testing.assert_array_equal(rb.values(run.path, path)["mg"], expected, err_msg=path)
+    for plot, cols in ((P.LAMBDA_MISALIGNMENT, slice(0, 3)), (P.LAMBDA_SCALE, slice(3, 6)),
+                       (P.LAMBDA_BIAS, slice(6, 9))):
+        np.testing.assert_allclose(_params(run.path, plot, ACC_PARAM_NAMES[cols]),
+                                   sweep.params[:, cols], rtol=1e-6, atol=1e-9, err_msg=plot)
 
     acc, gyro = r.segments[0].acc, r.segments[0].gyro
-    for sensor, what, expected in (
-            ("accelerometer", "misalignment", acc.trace_params[:, 0:3]),
-            ("accelerometer", "scale", acc.trace_params[:, 3:6]),
-            ("accelerometer", "bias", acc.trace_params[:, 6:9]),
-            ("gyroscope", "misalignment", gyro.trace_params[:, 0:6]),
-            ("gyroscope", "scale", gyro.trace_params[:, 6:9]),
-            ("gyroscope", "bias", gyro.trace_bias)):
-        _, v = rb.scalars(run.path, P.iteration("segment_0", sensor, what), timeline=P.ITERATION)
-        np.testing.assert_array_equal(v, expected, err_msg=f"{sensor} {what}")
+    for sensor, what, names, expected in (
+            ("accelerometer", "misalignment", ACC_PARAM_NAMES[0:3], acc.trace_params[:, 0:3]),
+            ("accelerometer", "scale", ACC_PARAM_NAMES[3:6], acc.trace_params[:, 3:6]),
+            ("accelerometer", "bias", ACC_PARAM_NAMES[6:9], acc.trace_params[:, 6:9]),
+            ("gyroscope", "misalignment", GYRO_PARAM_NAMES[0:6], gyro.trace_params[:, 0:6]),
+            ("gyroscope", "scale", GYRO_PARAM_NAMES[6:9], gyro.trace_params[:, 6:9]),
+            ("gyroscope", "bias", ("b_x", "b_y", "b_z"), gyro.trace_bias)):
+        v = _params(run.path, P.iteration(sensor, what), [f"segment_0/{n}" for n in names])
+        np.testing.assert_allclose(v, expected, rtol=1e-6, atol=1e-9,  # float32 positions
+                                   err_msg=f"{sensor} {what}")
 
     _, measured = rb.column(run.path, P.GRAVITY_MEASURED, "Arrows3D:vectors")
     np.testing.assert_allclose(np.reshape(measured, (-1, 3)), gyro.u_blocks, atol=1e-6)
@@ -281,7 +292,7 @@ def test_blueprint_is_stored_with_every_kind_of_view(run):
     classes = {c for c, _ in views}
     assert {"TimeSeries", "StateTimeline", "3D", "2D", "TextDocument"} <= classes
     names = [n for _, n in views]
-    assert any("lambda" in n for n in names) and any("iteration" in n for n in names)
+    assert any("vs λ" in n for n in names) and any("accepted step" in n for n in names)
     assert rb.blueprint_containers(run.path) == sorted(
         ["Overview", "Signals", "Gravity", "L-curve", "Optimiser"])
 
@@ -365,9 +376,10 @@ def test_two_segments_accelerometer_only_and_raw_counts(tmp_path):
     assert len(r.segments) == 2
     rec = _record(r, tmp_path / "two.rrd")
     ents = rb.entities(rec.path)
-    for p in (P.lcurve_segment(0) + "/corner", P.lcurve_segment(1) + "/points",
-              P.iteration("whole", "accelerometer", "scale"),
-              P.iteration("segment_1", "gyroscope", "scale"), P.calibration(1, "gyroscope")):
+    for p in (P.lcurve_segment(0) + "_corner", P.lcurve_segment(1),
+              P.iteration_series("whole", "accelerometer", "scale", "s_x"),
+              P.iteration_series("segment_1", "gyroscope", "scale", "s_z"),
+              P.calibration(1, "gyroscope")):
         assert p in ents, p
     _, states = rb.column(rec.path, P.DETECTOR_SEGMENTS, "StateChange:state")
     assert [s[0] for s in states] == ["segment 0", "between segments", "segment 1", ""]

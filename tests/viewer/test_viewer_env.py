@@ -23,7 +23,8 @@ def _run_native_test(tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
     clean.update(VK_DRIVER_FILES=str(tmp_path / "no-such-driver.json"), **env)
     return subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-rs", "-p", "no:cacheprovider",
-         "tests/viewer/test_viewer_screens.py::test_native_viewer_shows_every_tab_without_errors"],
+         "tests/viewer/test_viewer_screens.py"
+         "::test_native_viewer_every_panel_of_every_tab_draws_data[sample]"],
         cwd=ROOT, env=clean, capture_output=True, text=True, timeout=300)
 
 
