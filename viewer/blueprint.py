@@ -119,7 +119,7 @@ def _overview(result: Result | None, gyro: bool) -> rrb.Horizontal:
     return rrb.Horizontal(
         _with_lanes(*magnitudes),
         rrb.Vertical(rrb.TextDocumentView(name="Summary", origin=P.SUMMARY),
-                     _gravity3d("Gravity at the cursor: green measured, red/blue predicted"),
+                     _gravity3d("Gravity: green measured, red/blue predicted"),
                      row_shares=[3, 2]),
         guide_column(result), column_shares=[3, 2, 2], name="Overview")
 

@@ -75,8 +75,11 @@ def report_markdown(rep: Report) -> str:
               "|---|---:|---:|---:|"]
     for row in rep.quality:
         held = "" if row.held_out is None else fmt(row.held_out, '.4g')
-        lines.append(f"| {row.label} — {row.note} | {fmt(row.figure.before, '.4g')} | "
+        lines.append(f"| {row.label} | {fmt(row.figure.before, '.4g')} | "
                      f"{fmt(row.figure.after, '.4g')} | {held} |")
+    # What each figure measures, under the table: a narrow panel (the Overview's) then still
+    # shows the numbers instead of cutting the table at its long first column.
+    lines += ["", "; ".join(f"*{row.label}*: {row.note}" for row in rep.quality), ""]
     lines += [f"- {n}" for n in rep.quality_notes]
     lines.append("")
     if rep.guide:
