@@ -13,6 +13,7 @@ from imucal.result import Result, Segment
 from imucal.session import STANDARD_GRAVITY, Session, validate
 from imucal.settings import Settings
 from imucal.stages.accel import (
+    AccFit,
     block_mean_cov,
     calibrate_accelerometer,
     make_nominal,
@@ -90,6 +91,59 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     warnings += unwrapped + gap_warnings(session)
     g_in, g_out, acc_unit = resolve_g(session, settings.g)
 
+    still = _still_blocks(session, settings, g_in, warnings)  # §1
+    det, block_times = still.det, still.block_times
+
+    # A first whole-session fit: it gives the grouping calibrated magnitudes (method.md §2).
+    whole = calibrate_accelerometer(session.acc, det.blocks, acc_unit=session.acc_unit,
+                                    g_in=g_in, g_out=g_out, settings=settings.acc)
+    means_n = whole.nominal.to_nominal(det.means)
+    # The grouping fits block means, one point per block where M3 had n_points: scale lambda
+    # so that the prior weighs the same against the data.
+    lam_blocks = whole.lam * len(det.blocks) / whole.n_points
+    mean_var_n = block_mean_variance(session.acc, det.blocks) / whole.nominal.scale ** 2
+    grouping = group_blocks(means_n, mean_var_n, whole.theta_nominal, lam_blocks, settings.group)
+
+    several = len(grouping.segments) > 1
+    segments = []
+    for i, (b0, b1) in enumerate(grouping.segments):  # §3 and §4 on each segment
+        seg = _segment(session, settings, still, whole, i, b0, b1, g_in, g_out, several)
+        segments.append(seg)
+        # A warning names its segment only when there are several: one segment is the session.
+        warnings += _segment_warnings(seg, i if several else None)
+
+    calibration = Calibration(
+        segments=tuple(SegmentModels(t_start=s.t_start, t_end=s.t_end, acc=s.acc.model,
+                                     gyro=s.gyro.model if s.gyro else None) for s in segments),
+        acc_unit_raw=session.acc_unit, acc_unit=acc_unit, g=g_out,
+        gyro_unit_raw=session.gyro_unit if session.has_gyro else None)
+    calibrated = calibration.apply(session)
+    quality = quality_figures(session, det, calibrated,
+                              [s.gyro for s in segments if s.gyro is not None],
+                              np.concatenate([s.acc_cv.block_error_mg for s in segments]),
+                              g_in, g_out)  # §5
+    guide = recording_guide(session, det, block_times, np.concatenate(
+        [s.acc.model.apply(det.means[s.blocks[0]:s.blocks[1]]) for s in segments]),
+        [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None], calibrated.gyro_norm)
+    return Result(session=session, settings=settings, detection=det, block_times=block_times,
+                  whole=whole, grouping=grouping, segments=segments, calibration=calibration,
+                  calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings,
+                  guide=guide)
+
+
+@dataclasses.dataclass(frozen=True)
+class StillBlocks:
+    """The still blocks every later stage uses, and the gyroscope samples it must not trust."""
+
+    det: Detection
+    block_times: np.ndarray  # (B, 2) first and last still sample's time, s
+    gyro_saturated: np.ndarray | None  # (M,) True where the gyroscope is flat at its limit
+
+
+def _still_blocks(session: Session, settings: Settings, g_in: float,
+                  warnings: list[RunWarning]) -> StillBlocks:
+    """Detect the still blocks (§1), cut them at time gaps, drop those holding saturated
+    samples, refuse too little still data; what was found is said in ``warnings``."""
     det, stated = _detect(session, settings, g_in)
     if det.note:  # the initial still interval was moved, or the reference level found (§1)
         warnings.append(RunWarning("detector_reference", det.note))
@@ -117,73 +171,51 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         warnings.append(no_gyro)
     if stated:
         warnings.append(RunWarning("init_still_stated", stated))
+    return StillBlocks(det=det, block_times=block_times, gyro_saturated=gyro_sat)
 
-    # A first whole-session fit: it gives the grouping calibrated magnitudes (method.md §2).
-    whole = calibrate_accelerometer(session.acc, det.blocks, acc_unit=session.acc_unit,
-                                    g_in=g_in, g_out=g_out, settings=settings.acc)
-    means_n = whole.nominal.to_nominal(det.means)
-    # The grouping fits block means, one point per block where M3 had n_points: scale lambda
-    # so that the prior weighs the same against the data.
-    lam_blocks = whole.lam * len(det.blocks) / whole.n_points
-    mean_var_n = block_mean_variance(session.acc, det.blocks) / whole.nominal.scale ** 2
-    grouping = group_blocks(means_n, mean_var_n, whole.theta_nominal, lam_blocks, settings.group)
 
-    segments = []
-    for i, (b0, b1) in enumerate(grouping.segments):
-        blocks = det.blocks[b0:b1]
-        if len(grouping.segments) == 1:
-            acc_fit = whole
-        else:
-            acc_fit = calibrate_accelerometer(session.acc, blocks, acc_unit=session.acc_unit,
-                                              g_in=g_in, g_out=g_out, settings=settings.acc,
-                                              nominal=whole.nominal)
-        gyro_fit = None
-        if session.has_gyro:
-            gyro_fit = calibrate_gyroscope(session.gyro, session.t_gyro, block_times[b0:b1],
-                                           acc_fit.model.apply(det.means[b0:b1]),
-                                           session.gyro_unit, settings.gyro,
-                                           block_mean_cov(session.acc, blocks, acc_fit),
-                                           saturated=gyro_sat, no_data=turns_without_gyro(
-                                               session.t_gyro, block_times[b0:b1]))
-        n_orient = distinct_orientations(det.means[b0:b1] - acc_fit.model.b)
-        acc_cv = leave_one_block_out(acc_fit, det.means[b0:b1])
-        seg = Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
-                      t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,
-                      orientations=n_orient, acc_cv=acc_cv)
-        segments.append(seg)
-        # A warning names its segment only when there are several: one segment is the session.
-        where = i if len(grouping.segments) > 1 else None
-        warnings += [w.in_segment(where) for w in acc_fit.warnings]
-        if gyro_fit is not None:
-            warnings += [w.in_segment(where) for w in gyro_fit.warnings]
-        if acc_cv.overfitted:
-            warnings.append(RunWarning(
-                "acc_overfitted", f"overfitted: still blocks held out of the accelerometer fit "
-                f"are off by {acc_cv.rms_mg:.3g} mg RMS against {acc_cv.in_sample_rms_mg:.3g} mg "
-                f"for the blocks it saw; {acc_cv.advice()}", where))
-        if n_orient < 9:
-            warnings.append(RunWarning(
-                "few_orientations", f"only {n_orient} distinct still orientations; 9 or more are "
-                "needed to determine the accelerometer's 9 parameters without the prior (the "
-                "regularisation holds the rest at nominal)", where))
+def _segment(session: Session, settings: Settings, still: StillBlocks, whole: AccFit, i: int,
+             b0: int, b1: int, g_in: float, g_out: float, several: bool) -> Segment:
+    """One segment's accelerometer (§3, the whole-session fit when it is the only one) and
+    gyroscope (§4) fits, with the held-out check of its accelerometer fit (§5)."""
+    det, block_times = still.det, still.block_times
+    blocks = det.blocks[b0:b1]
+    acc_fit = whole
+    if several:
+        acc_fit = calibrate_accelerometer(session.acc, blocks, acc_unit=session.acc_unit,
+                                          g_in=g_in, g_out=g_out, settings=settings.acc,
+                                          nominal=whole.nominal)
+    gyro_fit = None
+    if session.has_gyro:
+        gyro_fit = calibrate_gyroscope(session.gyro, session.t_gyro, block_times[b0:b1],
+                                       acc_fit.model.apply(det.means[b0:b1]),
+                                       session.gyro_unit, settings.gyro,
+                                       block_mean_cov(session.acc, blocks, acc_fit),
+                                       saturated=still.gyro_saturated, no_data=turns_without_gyro(
+                                           session.t_gyro, block_times[b0:b1]))
+    return Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
+                   t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,
+                   orientations=distinct_orientations(det.means[b0:b1] - acc_fit.model.b),
+                   acc_cv=leave_one_block_out(acc_fit, det.means[b0:b1]))
 
-    calibration = Calibration(
-        segments=tuple(SegmentModels(t_start=s.t_start, t_end=s.t_end, acc=s.acc.model,
-                                     gyro=s.gyro.model if s.gyro else None) for s in segments),
-        acc_unit_raw=session.acc_unit, acc_unit=acc_unit, g=g_out,
-        gyro_unit_raw=session.gyro_unit if session.has_gyro else None)
-    calibrated = calibration.apply(session)
-    quality = quality_figures(session, det, calibrated,
-                              [s.gyro for s in segments if s.gyro is not None],
-                              np.concatenate([s.acc_cv.block_error_mg for s in segments]),
-                              g_in, g_out)
-    guide = recording_guide(session, det, block_times, np.concatenate(
-        [s.acc.model.apply(det.means[s.blocks[0]:s.blocks[1]]) for s in segments]),
-        [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None], calibrated.gyro_norm)
-    return Result(session=session, settings=settings, detection=det, block_times=block_times,
-                  whole=whole, grouping=grouping, segments=segments, calibration=calibration,
-                  calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings,
-                  guide=guide)
+
+def _segment_warnings(seg: Segment, where: int | None) -> list[RunWarning]:
+    """The fits' own warnings, overfitting (§5) and too few orientations, for one segment."""
+    out = [w.in_segment(where) for w in seg.acc.warnings]
+    if seg.gyro is not None:
+        out += [w.in_segment(where) for w in seg.gyro.warnings]
+    cv = seg.acc_cv
+    if cv.overfitted:
+        out.append(RunWarning(
+            "acc_overfitted", f"overfitted: still blocks held out of the accelerometer fit "
+            f"are off by {cv.rms_mg:.3g} mg RMS against {cv.in_sample_rms_mg:.3g} mg "
+            f"for the blocks it saw; {cv.advice()}", where))
+    if seg.orientations < 9:
+        out.append(RunWarning(
+            "few_orientations", f"only {seg.orientations} distinct still orientations; 9 or "
+            "more are needed to determine the accelerometer's 9 parameters without the prior "
+            "(the regularisation holds the rest at nominal)", where))
+    return out
 
 
 def _drop_saturated(acc: np.ndarray, det: Detection) -> tuple[Detection, int]:
