@@ -83,21 +83,7 @@ def load_session(
     for p in paths:
         _check_file(p)
 
-    if gyro_path is None:
-        parts = _extract(read_file(paths[0]), ("acc", "gyro"), opts)
-        if "gyro" not in parts and not acc_only:
-            raise ImucalError("found an accelerometer and no gyroscope; give the gyroscope's "
-                              "file with --gyro FILE, or --acc-only to calibrate the "
-                              "accelerometer alone", source=source, field="columns")
-        if acc_only:
-            parts.pop("gyro", None)
-            opts.notes.append(f"accelerometer only (--acc-only): {display_name(paths[0])}")
-    else:
-        parts = _extract(read_file(paths[0]), ("acc",), opts)
-        parts.update(_extract(read_file(paths[1]), ("gyro",), opts))
-    if gyro_path is None and "gyro" in parts:
-        _share_equal_time(parts["acc"], parts["gyro"])
-        own_rows(parts["acc"], parts["gyro"], opts)
+    parts = _read_parts(paths, acc_only, opts, source)
 
     acc, t_acc = settle_time(parts["acc"], opts)
     gyro = t_gyro = None
@@ -108,20 +94,7 @@ def load_session(
         note = one_rate_pairing(t_acc, t_gyro, opts.rate, *(display_name(p) for p in paths))
         opts.notes.extend([note] if note else [])
 
-    acc = _scale_named_unit(acc, parts["acc"], opts.notes)
-    if gyro is not None:
-        gyro = _scale_named_unit(gyro, parts["gyro"], opts.notes)
-    acc_unit = resolve_acc_unit(acc, acc_unit, parts["acc"].unit_hint, parts["acc"].source,
-                                opts.notes)
-    final_gyro_unit = None
-    if gyro is not None:
-        gyro_unit = resolve_gyro_unit(gyro, gyro_unit, parts["gyro"].unit_hint, acc_unit,
-                                      opts.notes)
-        if gyro_unit == "deg/s":
-            gyro = np.deg2rad(gyro)
-            opts.notes.append("gyroscope converted from deg/s to rad/s")
-            gyro_unit = "rad/s"
-        final_gyro_unit = gyro_unit
+    acc, acc_unit, gyro, final_gyro_unit = _units(acc, gyro, parts, acc_unit, gyro_unit, opts)
 
     return Session(
         acc=np.ascontiguousarray(acc, dtype=np.float64),
@@ -136,6 +109,48 @@ def load_session(
         init_still_s=opts.init_still_s,
     )
 
+
+
+def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
+                source: str) -> dict:
+    """The accelerometer's and gyroscope's columns, from one file or from two."""
+    if len(paths) == 2:
+        parts = _extract(read_file(paths[0]), ("acc",), opts)
+        parts.update(_extract(read_file(paths[1]), ("gyro",), opts))
+        return parts
+    parts = _extract(read_file(paths[0]), ("acc", "gyro"), opts)
+    if "gyro" not in parts and not acc_only:
+        raise ImucalError("found an accelerometer and no gyroscope; give the gyroscope's "
+                          "file with --gyro FILE, or --acc-only to calibrate the "
+                          "accelerometer alone", source=source, field="columns")
+    if acc_only:
+        parts.pop("gyro", None)
+        opts.notes.append(f"accelerometer only (--acc-only): {display_name(paths[0])}")
+    if "gyro" in parts:
+        _share_equal_time(parts["acc"], parts["gyro"])
+        own_rows(parts["acc"], parts["gyro"], opts)
+    return parts
+
+
+def _units(acc: np.ndarray, gyro: np.ndarray | None, parts: dict, acc_unit: str,
+           gyro_unit: str, opts: LoadOptions
+           ) -> tuple[np.ndarray, str, np.ndarray | None, str | None]:
+    """Each signal in its resolved unit (named in the file, given, or guessed from the
+    values), the gyroscope in rad/s unless it is raw counts; each choice in ``opts.notes``."""
+    acc = _scale_named_unit(acc, parts["acc"], opts.notes)
+    if gyro is not None:
+        gyro = _scale_named_unit(gyro, parts["gyro"], opts.notes)
+    acc_unit = resolve_acc_unit(acc, acc_unit, parts["acc"].unit_hint, parts["acc"].source,
+                                opts.notes)
+    if gyro is None:
+        return acc, acc_unit, None, None
+    gyro_unit = resolve_gyro_unit(gyro, gyro_unit, parts["gyro"].unit_hint, acc_unit,
+                                  opts.notes)
+    if gyro_unit == "deg/s":
+        gyro = np.deg2rad(gyro)
+        opts.notes.append("gyroscope converted from deg/s to rad/s")
+        gyro_unit = "rad/s"
+    return acc, acc_unit, gyro, gyro_unit
 
 
 # --- argument checks -----------------------------------------------------------------------------
