@@ -39,8 +39,9 @@ class Transitions:
         self.starts, self.ends = s, e
         self.n_steps = e - s
         self.layout = StepLayout(t, s, e)
-        # Components as separate contiguous arrays: the hot loop is elementwise.
-        comps = [np.ascontiguousarray(w_raw[:, i], dtype=float) for i in range(3)]
+        # Gathered per bucket into contiguous component arrays (the hot loop is elementwise),
+        # straight from column views: no full-length copy of each column first.
+        comps = [np.asarray(w_raw[:, i], dtype=float) for i in range(3)]
         self.rates = self.layout.gather(comps)
 
     def __len__(self) -> int:
@@ -105,10 +106,12 @@ class Transitions:
         cal = calibrator([(model.matrix, model.b)])
         out = 0.0
         for (_, _, _, dt, _), w in zip(self.layout.buckets, self.rates):
-            if dt.size:
-                c = cal(tuple(x[:-1, None, :] for x in w))
+            rows = max(1, SLAB // max(dt.shape[1], 1))  # a slab at a time: temporaries stay small
+            for r0 in range(0, dt.shape[0] if dt.size else 0, rows):
+                sl = slice(r0, min(r0 + rows, dt.shape[0]))
+                c = cal(tuple(x[sl, None, :] for x in w))
                 norm = np.sqrt(c[0] ** 2 + c[1] ** 2 + c[2] ** 2)[:, 0, :]
-                out = max(out, float(np.max(norm * dt)))
+                out = max(out, float(np.max(norm * dt[sl])))
         return out
 
     def isotropic(self, bias: np.ndarray):
