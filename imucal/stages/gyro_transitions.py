@@ -12,6 +12,7 @@ import numpy as np
 from imucal.models import SensorModel, gyro_T
 from imucal.numerics.quaternion import rotate_inverse, to_matrix
 from imucal.numerics.rk4 import SLAB, StepLayout, calibrator, mul, product_rows
+from imucal.numerics.rk4.integrate import integrate_buckets
 
 
 def transition_samples(t: np.ndarray, block_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -63,13 +64,16 @@ class Transitions:
         """:meth:`rotations` with a model of its own for each transition, ``w = M[k] (w_raw -
         b[k])`` over transition k ((K, 3, 3) and (K, 3)); (K, 4). One evaluation's work: the
         cross-validation predicts each held-out turn with its own fold's fit this way."""
-        cal = []
-        for (idx, *_), w in zip(self.layout.buckets, self.rates):
+        out = np.empty((len(self), 4))
+        for bucket, w in zip(self.layout.buckets, self.rates):  # one bucket's rates at a time
+            idx = bucket[0]
             Mk, bk = M[idx], b[idx]  # one column of the bucket per transition
             d = [x - bk[:, j] for j, x in enumerate(w)]
-            cal.append(tuple(d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
-                             for i in range(3)))
-        return self.layout.integrate(cal)[0]  # padding: dt = 0, identity steps
+            cal = tuple(d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
+                        for i in range(3))
+            del d
+            out[idx] = integrate_buckets([bucket], len(self), [cal])[0][idx]  # padding: dt = 0
+        return out
 
     def jacobian(self, model_of: Callable[[np.ndarray], SensorModel], theta: np.ndarray,
                  u_prev: np.ndarray) -> np.ndarray:
