@@ -65,14 +65,16 @@ class Transitions:
         b[k])`` over transition k ((K, 3, 3) and (K, 3)); (K, 4). One evaluation's work: the
         cross-validation predicts each held-out turn with its own fold's fit this way."""
         out = np.empty((len(self), 4))
-        for bucket, w in zip(self.layout.buckets, self.rates):  # one bucket's rates at a time
-            idx = bucket[0]
-            Mk, bk = M[idx], b[idx]  # one column of the bucket per transition
-            d = [x - bk[:, j] for j, x in enumerate(w)]
-            cal = tuple(d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
-                        for i in range(3))
-            del d
-            out[idx] = integrate_buckets([bucket], len(self), [cal])[0][idx]  # padding: dt = 0
+        for bucket, w in zip(self.layout.buckets, self.rates):
+            Mk, bk = M[bucket.idx], b[bucket.idx]  # one column of the bucket per transition
+
+            def cal(x, Mk=Mk, bk=bk):  # a slab of rows at a time, not the bucket at once
+                d = [v[:, 0] - bk[:, j] for j, v in enumerate(x)]
+                return tuple((d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
+                              )[:, None] for i in range(3))
+
+            q = integrate_buckets([bucket], len(self), [w], cal)[0]  # padding: dt = 0
+            out[bucket.idx] = q[bucket.idx]
         return out
 
     def jacobian(self, model_of: Callable[[np.ndarray], SensorModel], theta: np.ndarray,
