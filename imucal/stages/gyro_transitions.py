@@ -41,9 +41,13 @@ class Transitions:
         self.n_steps = e - s
         self.layout = StepLayout(t, s, e)
         # Gathered per bucket into contiguous component arrays (the hot loop is elementwise),
-        # straight from column views: no full-length copy of each column first.
+        # straight from column views, = layout.gather([w_raw[:, i] for i in range(3)]) with
+        # no full-length column copies; a bucket's sample indices are dropped once used.
         comps = [np.asarray(w_raw[:, i], dtype=float) for i in range(3)]
-        self.rates = self.layout.gather(comps)
+        self.rates = []
+        for k, b in enumerate(self.layout.buckets):
+            self.rates.append(tuple(_gathered(c, b.i0, b.valid) for c in comps))
+            self.layout.buckets[k] = b._replace(i0=None, valid=None)
 
     def __len__(self) -> int:
         return len(self.starts)
@@ -185,6 +189,13 @@ class Transitions:
             d = [0.5 * (x[:-1] + x[1:]) - b for x, b in zip(w, bias)]
             out[idx] = np.sum(np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * dt, axis=0)
         return out
+
+
+def _gathered(c: np.ndarray, i0: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``np.where(valid, c[i0], 0.0)`` without its second temporary."""
+    out = c[i0]
+    out[~valid] = 0.0
+    return out
 
 
 def gyro_model_of(theta: np.ndarray, static_bias: np.ndarray, s0: float) -> SensorModel:
