@@ -179,3 +179,43 @@ def mask_of_runs(runs: np.ndarray, n: int) -> np.ndarray:
     np.add.at(edges, np.clip(runs[:, 0], 0, n), 1)
     np.add.at(edges, np.clip(runs[:, 1], 0, n), -1)
     return np.cumsum(edges[:-1]) > 0
+
+
+# Rows of ``x`` centred at once by :func:`centred_segment_sums` (6 MB of float64 triples).
+CHUNK_ROWS = 1 << 18
+
+
+def centred_segment_sums(x: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                         centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`segment_sums` of ``x - centre`` and of ``(x - centre)**2`` (the moments of a
+    block's scatter), with no temporary the size of ``x``.
+
+    Sorted, non-overlapping ranges are taken in runs spanning about :data:`CHUNK_ROWS` rows
+    (a longer range alone): each run's samples are centred and squared in one buffer. Every
+    range's sum is reduced over its own samples exactly as on the whole array, so the result
+    is the same to the bit. Other ranges go through the whole array at once.
+    """
+    starts = np.asarray(starts, np.int64)
+    ends = np.asarray(ends, np.int64)
+    keep = ends > starts
+    s, e = starts[keep], ends[keep]
+    if len(s) == 0 or s[0] < 0 or e[-1] > len(x) or np.any(e[:-1] > s[1:]):
+        xc = x - centre
+        s1 = segment_sums(xc, starts, ends)
+        np.multiply(xc, xc, out=xc)
+        return s1, segment_sums(xc, starts, ends)
+    s1 = np.zeros((len(starts),) + x.shape[1:])
+    s2 = np.zeros_like(s1)
+    where = np.flatnonzero(keep)
+    # Runs of ranges: a new run starts where the span from the run's first start would pass
+    # CHUNK_ROWS (found with one pass over the ranges, not the samples).
+    i = 0
+    while i < len(s):
+        j = i + max(1, int(np.searchsorted(e[i:], s[i] + CHUNK_ROWS, side="right")))
+        a, b = int(s[i]), int(e[j - 1])
+        xc = x[a:b] - centre
+        s1[where[i:j]] = segment_sums(xc, s[i:j] - a, e[i:j] - a)
+        np.multiply(xc, xc, out=xc)
+        s2[where[i:j]] = segment_sums(xc, s[i:j] - a, e[i:j] - a)
+        i = j
+    return s1, s2

@@ -10,7 +10,7 @@ from imucal.errors import ImucalError
 from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_theta
 from imucal.numerics.lcurve import lcurve_corner
 from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov, sandwich_cov
-from imucal.numerics.windows import block_means, segment_sums
+from imucal.numerics.windows import block_means, centred_segment_sums
 from imucal.settings import AccSettings, Settings
 from imucal.stages.accel_points import (
     BlockNoise,
@@ -313,11 +313,8 @@ def block_mean_cov(acc: np.ndarray, blocks: np.ndarray, fit: AccFit) -> Factored
     square of the number of blocks (``np.asarray`` gives it)."""
     B = len(blocks)
     n = (blocks[:, 1] - blocks[:, 0]).astype(float)
-    xc = acc - acc[0]
-    m1 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
-    np.multiply(xc, xc, out=xc)
-    m2 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
-    del xc
+    s1, s2 = centred_segment_sums(acc, blocks[:, 0], blocks[:, 1], acc[0])  # no copy of acc
+    m1, m2 = s1 / n[:, None], s2 / n[:, None]
     var_mean = np.clip(m2 - m1 * m1, 0, None) / np.maximum(n - 1, 1)[:, None]  # per axis
     M = fit.model.matrix
     noise = np.einsum("ij,bj,kj->bik", M, var_mean, M)  # M diag(var/n) M'

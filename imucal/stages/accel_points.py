@@ -14,7 +14,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.models import acc_T
-from imucal.numerics.windows import segment_sums
+from imucal.numerics.windows import centred_segment_sums, segment_sums
 
 POINT_MODES = ("ml", "mean", "chunks", "thesis")
 
@@ -138,11 +138,8 @@ def block_scatter(acc: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, Bloc
     """
     n = (blocks[:, 1] - blocks[:, 0]).astype(float)
     c = np.asarray(acc[blocks[:, 0]], float).mean(axis=0)
-    xc = acc - c
-    m1 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
-    np.multiply(xc, xc, out=xc)
-    m2 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
-    del xc
+    s1, s2 = centred_segment_sums(acc, blocks[:, 0], blocks[:, 1], c)  # no copy of acc
+    m1, m2 = s1 / n[:, None], s2 / n[:, None]
     var = np.clip(m2 - m1 * m1, 0, None) * (n / np.maximum(n - 1, 1))[:, None]  # unbiased
     return m1 + c, BlockNoise(n=n, var=var)
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.models import ACC_THETA0
-from imucal.numerics.windows import block_means
+from imucal.numerics.windows import CHUNK_ROWS, block_means
 from imucal.stages.accel import (
     FitPoints,
     best_fit,
@@ -42,7 +42,14 @@ class Prefix:
         n = len(x)
         self.d, self.origin = d, x[0].copy()
         edges = np.arange(0, n, d)
-        sums = np.add.reduceat(x - self.origin, edges, axis=0)
+        # Whole bins a run at a time (each bin summed over its own samples, as on the whole
+        # signal): no centred copy of the signal.
+        sums = np.empty((len(edges),) + x.shape[1:])
+        step = max(1, CHUNK_ROWS // d) * d
+        for a in range(0, n, step):
+            b = min(a + step, n)
+            sums[a // d:a // d + -(-(b - a) // d)] = np.add.reduceat(
+                x[a:b] - self.origin, np.arange(0, b - a, d), axis=0)
         self.s1 = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(sums, axis=0)])
         self.count = np.minimum(np.arange(len(edges) + 1) * d, n)
 

@@ -38,7 +38,7 @@ from collections.abc import Callable
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.numerics.windows import runs_of_true
+from imucal.numerics.windows import CHUNK_ROWS, runs_of_true
 from imucal.settings import THESIS_INIT, DetectSettings
 from imucal.stages.detect import (
     INIT_MAX_F,
@@ -221,8 +221,13 @@ def still_runs(values: np.ndarray, threshold: float, local: float | None,
         return runs
     median = _run_medians(values, runs)
     lengths = runs[:, 1] - runs[:, 0]
-    idx = _run_indices(runs)
-    mask[idx] = values[idx] < local * np.repeat(median, lengths)
+    ends = np.cumsum(lengths)
+    i = 0
+    while i < len(runs):  # runs of runs of about CHUNK_ROWS samples: small index arrays
+        j = max(i + 1, int(np.searchsorted(ends, ends[i] - lengths[i] + CHUNK_ROWS, "right")))
+        idx = _run_indices(runs[i:j])
+        mask[idx] = values[idx] < local * np.repeat(median[i:j], lengths[i:j])
+        i = j
     return runs_of_true(mask)
 
 
@@ -259,8 +264,12 @@ def _scan(acc: np.ndarray, stat: np.ndarray, ref: float, ks: tuple[float, ...], 
     n = len(acc)
     d = max(1, window // BIN_SAMPLES)
     nb = -(-n // d)
-    padded = np.concatenate([stat, np.full(nb * d - n, np.inf)]) if nb * d > n else stat
-    binmax = padded.reshape(nb, d).max(axis=1)
+    # = stat padded with inf to whole bins, reshaped and maxed: with no padded copy of stat.
+    full = n // d
+    binmax = np.empty(nb)
+    binmax[:full] = stat[:full * d].reshape(full, d).max(axis=1)
+    if nb > full:
+        binmax[full] = np.concatenate([stat[full * d:], [np.inf]]).max()
     pre = Prefix(acc, d)
     q = local_factor(window, local) if local else None
     out = []

@@ -47,7 +47,7 @@ from imucal.errors import ImucalError
 from imucal.models import ACC_THETA0, acc_T
 from imucal.numerics.directions import distinct_orientations
 from imucal.numerics.least_squares import fit_tikhonov
-from imucal.numerics.windows import segment_sums
+from imucal.numerics.windows import centred_segment_sums
 from imucal.settings import GroupSettings, Settings
 from imucal.stages.accel import jacobian, residuals
 
@@ -89,10 +89,9 @@ def block_mean_variance(acc: np.ndarray, blocks: np.ndarray) -> np.ndarray:
     """Per-axis variance of each block's mean, ``s_k^2 / n_k`` from the block's own scatter
     (B, 3). Centred on the first sample and summed per block, so it keeps its digits."""
     n = (blocks[:, 1] - blocks[:, 0]).astype(float)
-    xc = np.asarray(acc, float) - acc[0]
-    m1 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
-    np.multiply(xc, xc, out=xc)
-    m2 = segment_sums(xc, blocks[:, 0], blocks[:, 1]) / n[:, None]
+    # Run by run, not a centred copy of the signal (= np.asarray(acc, float) - acc[0]).
+    s1, s2 = centred_segment_sums(acc, blocks[:, 0], blocks[:, 1], np.asarray(acc[0], float))
+    m1, m2 = s1 / n[:, None], s2 / n[:, None]
     return np.clip(m2 - m1 * m1, 0, None) / np.maximum(n - 1, 1)[:, None]
 
 

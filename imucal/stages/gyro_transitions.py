@@ -12,6 +12,7 @@ import numpy as np
 from imucal.models import SensorModel, gyro_T
 from imucal.numerics.quaternion import rotate_inverse, to_matrix
 from imucal.numerics.rk4 import SLAB, StepLayout, calibrator, mul, product_rows
+from imucal.numerics.rk4.integrate import integrate_buckets
 
 
 def transition_samples(t: np.ndarray, block_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -39,9 +40,14 @@ class Transitions:
         self.starts, self.ends = s, e
         self.n_steps = e - s
         self.layout = StepLayout(t, s, e)
-        # Components as separate contiguous arrays: the hot loop is elementwise.
-        comps = [np.ascontiguousarray(w_raw[:, i], dtype=float) for i in range(3)]
-        self.rates = self.layout.gather(comps)
+        # Gathered per bucket into contiguous component arrays (the hot loop is elementwise),
+        # straight from column views, = layout.gather([w_raw[:, i] for i in range(3)]) with
+        # no full-length column copies; a bucket's sample indices are dropped once used.
+        comps = [np.asarray(w_raw[:, i], dtype=float) for i in range(3)]
+        self.rates = []
+        for k, b in enumerate(self.layout.buckets):
+            self.rates.append(tuple(_gathered(c, b.i0, b.valid) for c in comps))
+            self.layout.buckets[k] = b._replace(i0=None, valid=None)
 
     def __len__(self) -> int:
         return len(self.starts)
@@ -62,13 +68,18 @@ class Transitions:
         """:meth:`rotations` with a model of its own for each transition, ``w = M[k] (w_raw -
         b[k])`` over transition k ((K, 3, 3) and (K, 3)); (K, 4). One evaluation's work: the
         cross-validation predicts each held-out turn with its own fold's fit this way."""
-        cal = []
-        for (idx, *_), w in zip(self.layout.buckets, self.rates):
-            Mk, bk = M[idx], b[idx]  # one column of the bucket per transition
-            d = [x - bk[:, j] for j, x in enumerate(w)]
-            cal.append(tuple(d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
-                             for i in range(3)))
-        return self.layout.integrate(cal)[0]  # padding: dt = 0, identity steps
+        out = np.empty((len(self), 4))
+        for bucket, w in zip(self.layout.buckets, self.rates):
+            Mk, bk = M[bucket.idx], b[bucket.idx]  # one column of the bucket per transition
+
+            def cal(x, Mk=Mk, bk=bk):  # a slab of rows at a time, not the bucket at once
+                d = [v[:, 0] - bk[:, j] for j, v in enumerate(x)]
+                return tuple((d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
+                              )[:, None] for i in range(3))
+
+            q = integrate_buckets([bucket], len(self), [w], cal)[0]  # padding: dt = 0
+            out[bucket.idx] = q[bucket.idx]
+        return out
 
     def jacobian(self, model_of: Callable[[np.ndarray], SensorModel], theta: np.ndarray,
                  u_prev: np.ndarray) -> np.ndarray:
@@ -105,10 +116,12 @@ class Transitions:
         cal = calibrator([(model.matrix, model.b)])
         out = 0.0
         for (_, _, _, dt, _), w in zip(self.layout.buckets, self.rates):
-            if dt.size:
-                c = cal(tuple(x[:-1, None, :] for x in w))
+            rows = max(1, SLAB // max(dt.shape[1], 1))  # a slab at a time: temporaries stay small
+            for r0 in range(0, dt.shape[0] if dt.size else 0, rows):
+                sl = slice(r0, min(r0 + rows, dt.shape[0]))
+                c = cal(tuple(x[sl, None, :] for x in w))
                 norm = np.sqrt(c[0] ** 2 + c[1] ** 2 + c[2] ** 2)[:, 0, :]
-                out = max(out, float(np.max(norm * dt)))
+                out = max(out, float(np.max(norm * dt[sl])))
         return out
 
     def isotropic(self, bias: np.ndarray):
@@ -176,6 +189,13 @@ class Transitions:
             d = [0.5 * (x[:-1] + x[1:]) - b for x, b in zip(w, bias)]
             out[idx] = np.sum(np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * dt, axis=0)
         return out
+
+
+def _gathered(c: np.ndarray, i0: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``np.where(valid, c[i0], 0.0)`` without its second temporary."""
+    out = c[i0]
+    out[~valid] = 0.0
+    return out
 
 
 def gyro_model_of(theta: np.ndarray, static_bias: np.ndarray, s0: float) -> SensorModel:

@@ -4,6 +4,8 @@ that the temporaries stay in cache (method.md M5)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from imucal.numerics.rk4.affine import calibrator
@@ -18,18 +20,19 @@ SLAB = 32768
 
 
 def integrate_buckets(buckets: list[Bucket], n: int, samples: list[Vec],
-                      models: list[tuple] | None = None) -> np.ndarray:
+                      models: list[tuple] | Callable[[Vec], Vec] | None = None) -> np.ndarray:
     """Quaternions (k, n, 4), normalised, of the ``n`` intervals of ``buckets`` under each of k
     models.
 
     ``samples`` are the raw rates of each bucket ((L + 1, K_b) per component); ``models`` a
     list of ``(M, b)``, the calibrated rate being ``M (w - b)`` (M4), or ``None`` for the rates
-    as they are (k = 1). Slab by slab of rows, each model's arithmetic is the same as alone.
+    as they are (k = 1), or a function calibrating a raw slab ((rows, 1, K_b) per component,
+    k = 1). Slab by slab of rows, each model's arithmetic is the same as alone.
     """
-    k = 1 if models is None else len(models)
+    k = 1 if models is None or callable(models) else len(models)
     out = np.empty((k, n, 4))
     out[:] = (1.0, 0.0, 0.0, 0.0)
-    cal = None if models is None else calibrator(models)
+    cal = models if models is None or callable(models) else calibrator(models)
     for (idx, _, _, dt, dt2), w in zip(buckets, samples):
         L, kb = dt.shape
         # Slabs depend on the layout only, not on k: the reduction tree, and so the

@@ -40,9 +40,7 @@ def sensitivity(buckets: list[Bucket], n: int, samples: list[Vec], M: np.ndarray
     q_out[:] = (1.0, 0.0, 0.0, 0.0)
     S_out = np.zeros((n, 9, 4))
     for (idx, _, _, dt, dt2), w in zip(buckets, samples):
-        weights = trapezoid_weights(w, b, dt)
-        om = tuple(x[:, 0, :] for x in cal(tuple(x[:, None, :] for x in w)))
-        carry, S = _bucket_sensitivity(om, dt, dt2, weights)
+        carry, S = _bucket_sensitivity(w, b, cal, dt, dt2)
         if carry is not None:
             q_out[idx] = np.stack(carry, axis=-1)
         S_out[idx] = S
@@ -50,43 +48,49 @@ def sensitivity(buckets: list[Bucket], n: int, samples: list[Vec], M: np.ndarray
     return q_out, S_out.reshape(n, 3, 3, 4)
 
 
-def trapezoid_weights(w: Vec, b: list[float], dt: np.ndarray) -> np.ndarray:
+def trapezoid_weights(w: Vec, b: list[float], dt: np.ndarray, r0: int = 0,
+                      r1: int | None = None) -> np.ndarray:
     """``d = (w_raw - b, 1)`` at every sample times its trapezoid weight (0 in the padding),
-    transition-major (K_b, L + 1, 4) so that each slab's sum over samples is one contiguous
-    matrix product per interval."""
+    transition-major (K_b, rows, 4) so that each slab's sum over samples is one contiguous
+    matrix product per interval; samples ``r0 .. r1 - 1`` of the L + 1 (all by default), each
+    value the same as in the whole."""
     L, kb = dt.shape
-    c = np.zeros((L + 1, kb))
-    c[:-1] += 0.5 * dt
-    c[1:] += 0.5 * dt
-    weights = np.empty((kb, L + 1, 4))
+    r1 = L + 1 if r1 is None else r1
+    c = np.zeros((r1 - r0, kb))
+    c[:max(min(r1, L) - r0, 0)] += 0.5 * dt[r0:r1]  # the step starting at the sample
+    lo = max(r0, 1)
+    c[lo - r0:] += 0.5 * dt[lo - 1:r1 - 1]  # the step ending at it
+    weights = np.empty((kb, r1 - r0, 4))
     weights[:, :, 3] = c.T
     for j in range(3):
-        weights[:, :, j] = ((w[j] - b[j]) * c).T
+        weights[:, :, j] = ((w[j][r0:r1] - b[j]) * c).T
     return weights
 
 
-def _bucket_sensitivity(om: Vec, dt: np.ndarray, dt2: np.ndarray, weights: np.ndarray
+def _bucket_sensitivity(w: Vec, b: list[float], cal, dt: np.ndarray, dt2: np.ndarray
                         ) -> tuple[Quat | None, np.ndarray]:
-    """The end rotation (None without steps) and ``S`` (K_b, 9, 4) of one bucket from its
-    calibrated rates ``om`` ((L + 1, K_b) per component), a slab of rows at a time: each slab's
+    """The end rotation (None without steps) and ``S`` (K_b, 9, 4) of one bucket from its raw
+    rates ``w`` ((L + 1, K_b) per component), a slab of rows at a time: each slab's
     orientations are a prefix scan relative to the slab's start, and the rotation carried in
-    from the slabs before is applied to the slab's sum once."""
+    from the slabs before is applied to the slab's sum once. The calibrated rates and the
+    weights are made a slab at a time too (no temporaries the size of the bucket)."""
     L, kb = dt.shape
     # The first sample: R = I, so S[k, 3 i + i, j] gets its weighted d_j.
     S = np.zeros((kb, 9, 4))
+    first = trapezoid_weights(w, b, dt, 0, 1)
     for i in range(3):
-        S[:, 4 * i, :] = weights[:, 0, :]
+        S[:, 4 * i, :] = first[:, 0, :]
     carry = None
     rows = max(1, SLAB // max(kb, 1))
     R = np.empty((kb, 9, min(rows, L)))
     for r0 in range(0, L, rows):
         r1 = min(r0 + rows, L)
-        P = rk4_raw(tuple(x[r0:r1] for x in om), tuple(x[r0 + 1:r1 + 1] for x in om),
-                    dt[r0:r1], dt2[r0:r1])
+        om = tuple(x[:, 0, :] for x in cal(tuple(x[r0:r1 + 1, None, :] for x in w)))
+        P = rk4_raw(tuple(x[:-1] for x in om), tuple(x[1:] for x in om), dt[r0:r1], dt2[r0:r1])
         Q = prefix_rows(P)  # orientation at samples r0 + 1 .. r1 relative to r0
         Rs = R[:, :, :r1 - r0]
         matrix_rows(Q, Rs.transpose(2, 1, 0))
-        part = np.matmul(Rs, weights[:, r0 + 1:r1 + 1])  # (kb, 9, 4)
+        part = np.matmul(Rs, trapezoid_weights(w, b, dt, r0 + 1, r1 + 1))  # (kb, 9, 4)
         if carry is None:
             carry = tuple(x[-1] for x in Q)
         else:
