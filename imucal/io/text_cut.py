@@ -35,7 +35,7 @@ def drop_cut_last_line(body: bytes, sep: str, n_fields: int, decimal_comma: bool
     fields = split_fields(body[start:end].decode("utf-8", errors="replace"), sep)
     if len(fields) < n_fields:
         why = f"has {len(fields)} of {n_fields} fields"
-    elif len(fields) == n_fields and _cut_number(fields[-1], decimal_comma):
+    elif fields and len(fields) == n_fields and _cut_number(fields[-1], decimal_comma):
         why = f"ends in {fields[-1]!r}, a number cut short"
     else:
         return body, None

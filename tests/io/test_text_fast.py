@@ -143,6 +143,8 @@ EDGE_CASES = {
     "header count": (b"t x y\n1 2\n3 4\n", False),
     "header only": (b"t,x\n\n", False),
     "text": (b"1 2\n3 four\n", False),
+    # Lines of no-break spaces only: no fields at all (found by the random test: IndexError).
+    "no-break spaces only": ("\u00a0\n\u00a0".encode(), False),
 }
 
 
