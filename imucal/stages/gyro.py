@@ -9,18 +9,17 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from imucal.errors import ImucalError
-from imucal.models import GYRO_PARAM_NAMES, GYRO_THETA0, SensorModel, gyro_theta
-from imucal.numerics.kfold import fold_of_groups, kfold_refits
+from imucal.models import GYRO_PARAM_NAMES, SensorModel, gyro_theta
 from imucal.numerics.least_squares import (
     FactoredCov,
     FitReport,
-    fit_tikhonov,
     sandwich_cov,
     trace_of,
 )
 from imucal.numerics.quaternion import rotate_inverse, to_matrix
 from imucal.numerics.windows import samples_within, segment_sums
 from imucal.settings import GyroSettings, Settings
+from imucal.stages.gyro_cv import GyroCV, fit_bias_choice
 from imucal.stages.gyro_transitions import (
     Transitions,
     angle_between,
@@ -29,36 +28,9 @@ from imucal.stages.gyro_transitions import (
 from imucal.stages.saturation import blocks_with
 from imucal.warning import RunWarning
 
-# Folds of the cross-validation over turns: K = min(CV_FOLDS, number of turns fitted).
-CV_FOLDS = 10
 # Held-out error this many times the in-sample one is said to be overfitting (method.md §5).
 # Measured: 1.1 to 1.4 on the real recordings in ../shared/data.
 OVERFIT_RATIO = 2.0
-
-
-@dataclass(frozen=True)
-class GyroCV:
-    """Gravity prediction out of sample (method.md §5): each turn predicted by a fit that did
-    not see it (K-fold over the turns), and the bias choice made by it (§4).
-
-    ``rms_static_bias`` and ``rms_optimised_bias`` are the RMS held-out angles (deg) of the fit
-    with the still-block bias and of the fit that also corrects the bias; ``None`` for a
-    variant not fitted (the choice forced by the setting), NaN with too few turns to hold any
-    out (``folds`` 0).
-    """
-
-    folds: int
-    angle: np.ndarray  # (K,) deg, the chosen fit's; NaN for turns left out of the fit
-    rms_static_bias: float | None
-    rms_optimised_bias: float | None
-    optimise_bias: bool  # the bias was fitted (12 parameters), not only measured (9)
-    how: str  # "cross-validation", "setting", or "too few turns" (one: none to hold out)
-
-    @property
-    def rms(self) -> float:
-        """RMS held-out angle of the chosen fit (deg)."""
-        rms = self.rms_optimised_bias if self.optimise_bias else self.rms_static_bias
-        return float("nan") if rms is None else float(rms)
 
 
 @dataclass(frozen=True)
@@ -191,6 +163,40 @@ def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: n
     return float(np.exp(best.x))
 
 
+def _excluded_turns(tr: Transitions, saturated: np.ndarray | None, no_data: np.ndarray | None,
+                    warnings: list[RunWarning]) -> np.ndarray:
+    """(K,) True for the turns left out of the fit: through saturated samples (said in
+    ``warnings``) or without gyroscope data; refused when none is left."""
+    excluded = np.zeros(len(tr), dtype=bool)
+    if saturated is not None and np.any(saturated):
+        excluded = blocks_with(saturated, np.column_stack([tr.starts, tr.ends + 1]))
+        if excluded.all():
+            raise ImucalError(f"all {len(excluded)} rotations between still poses pass through "
+                              "saturated gyroscope samples (flat at the sensor's limit): turn "
+                              "more slowly", source="gyroscope", field="rotations")
+        warnings.append(RunWarning("gyro_rotations_saturated", f"{int(excluded.sum())} of "
+                                   f"{len(excluded)} rotations between still poses pass through "
+                                   "saturated gyroscope samples and are left out of the "
+                                   "gyroscope fit"))
+    if no_data is not None and np.any(no_data):
+        excluded = excluded | no_data
+        if excluded.all():
+            raise ImucalError(f"none of the {len(excluded)} rotations between still poses has "
+                              "usable gyroscope data (no samples, a time gap or saturation)",
+                              source="gyroscope", field="rotations")
+    return excluded
+
+
+def _nominal_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: np.ndarray,
+                   gyro_unit: str, settings: GyroSettings) -> tuple[float, str]:
+    """The nominal scale s0 of M4 (rad/s per input unit) and where it came from."""
+    if gyro_unit != "counts":
+        return 1.0, "input in rad/s"
+    if settings.nominal_scale:
+        return float(settings.nominal_scale), "given sensitivity"
+    return _find_scale(tr, bias, u_prev, u_meas), "1-D search on the data (counts)"
+
+
 def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,
                         gravity: np.ndarray, gyro_unit: str,
                         settings: GyroSettings = Settings().gyro,
@@ -218,34 +224,12 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     u = gravity / np.linalg.norm(gravity, axis=1, keepdims=True)
     bias, bias_source = static_bias(w_raw, t, block_times, settings.bias)
     tr_all = Transitions(w_raw, t, block_times)
-    excluded = np.zeros(len(tr_all), dtype=bool)
-    if saturated is not None and np.any(saturated):
-        excluded = blocks_with(saturated, np.column_stack([tr_all.starts, tr_all.ends + 1]))
-        if excluded.all():
-            raise ImucalError(f"all {len(excluded)} rotations between still poses pass through "
-                              "saturated gyroscope samples (flat at the sensor's limit): turn "
-                              "more slowly", source="gyroscope", field="rotations")
-        warnings.append(RunWarning("gyro_rotations_saturated", f"{int(excluded.sum())} of "
-                                   f"{len(excluded)} rotations between still poses pass through "
-                                   "saturated gyroscope samples and are left out of the "
-                                   "gyroscope fit"))
-    if no_data is not None and np.any(no_data):
-        excluded = excluded | no_data
-        if excluded.all():
-            raise ImucalError(f"none of the {len(excluded)} rotations between still poses has "
-                              "usable gyroscope data (no samples, a time gap or saturation)",
-                              source="gyroscope", field="rotations")
+    excluded = _excluded_turns(tr_all, saturated, no_data, warnings)
     keep = ~excluded
     tr = tr_all if keep.all() else Transitions(w_raw, t, block_times, keep)
     fit_prev, fit_meas = u[:-1][keep], u[1:][keep]
 
-    if gyro_unit == "counts":
-        if settings.nominal_scale:
-            s0, how = float(settings.nominal_scale), "given sensitivity"
-        else:
-            s0, how = _find_scale(tr, bias, fit_prev, fit_meas), "1-D search on the data (counts)"
-    else:
-        s0, how = 1.0, "input in rad/s"
+    s0, how = _nominal_scale(tr, bias, fit_prev, fit_meas, gyro_unit, settings)
     have_nominal = gyro_unit != "counts" or bool(settings.nominal_scale)
 
     report, cv = fit_bias_choice(tr, fit_prev, fit_meas, bias, s0, settings.lam,
@@ -280,79 +264,6 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                    t_transition=np.column_stack([t[tr_all.starts], t[tr_all.ends]]),
                    rotation_angle=np.radians(angle), static_bias=bias, excluded=excluded,
                    cv=cv, warnings=warnings)
-
-
-def fit_bias_choice(tr: Transitions, u_prev: np.ndarray, u_meas: np.ndarray,
-                    bias: np.ndarray, s0: float, lam: float, optimise: bool | None
-                    ) -> tuple[FitReport, GyroCV]:
-    """Fit M4 with the still-block bias (9 parameters) or with a correction of it too (12),
-    and say how well each predicts turns it did not see.
-
-    ``optimise`` True or False fits that variant; ``None`` fits both and keeps the one with
-    the lower held-out gravity prediction error (K-fold over the turns, K = min(10, turns);
-    ties keep the still-block bias, the smaller model). In-sample figures cannot choose: the
-    12-parameter fit always fits the turns it saw at least as well. On the real MPU-9150 units
-    in ../shared/data the fitted bias halves the held-out error on two (0.32 -> 0.13 deg and
-    0.31 -> 0.17 deg) and is slightly worse on the third (0.163 vs 0.173 deg).
-    """
-    n = len(u_meas)
-    n_folds = min(CV_FOLDS, n) if n >= 2 else 0
-    folds = fold_of_groups(n, n_folds)
-    reports: dict[bool, FitReport] = {}
-    rms: dict[bool, float] = {}
-    angles: dict[bool, np.ndarray] = {}
-    for opt in ([False, True] if optimise is None else [bool(optimise)]):
-        theta0 = np.r_[GYRO_THETA0, np.zeros(3)] if opt else GYRO_THETA0.copy()
-        start, start_name = theta0, "prior"
-        if opt and False in reports:  # the 9-parameter solution with no bias correction
-            start, start_name = np.r_[reports[False].theta, np.zeros(3)], "still-bias fit"
-        reports[opt] = _fit(tr, u_prev, u_meas, bias, s0, theta0, start, lam, start_name)
-        angles[opt] = (_held_out_angles(tr, reports[opt], theta0, lam, u_prev, u_meas, bias,
-                                        s0, folds, n_folds) if n_folds else np.full(n, np.nan))
-        rms[opt] = float(np.sqrt(np.mean(np.square(angles[opt])))) if n else float("nan")
-    if optimise is not None:
-        chosen, how = bool(optimise), "setting"
-    elif n_folds:
-        chosen, how = bool(rms[True] < rms[False]), "cross-validation"
-    else:  # a single turn: none to hold out, so the smaller model
-        chosen, how = False, "too few turns"
-    cv = GyroCV(folds=n_folds, angle=angles[chosen], rms_static_bias=rms.get(False),
-                rms_optimised_bias=rms.get(True), optimise_bias=chosen, how=how)
-    return reports[chosen], cv
-
-
-def _fit(tr: Transitions, u_prev: np.ndarray, u_meas: np.ndarray, bias: np.ndarray, s0: float,
-         theta0: np.ndarray, start: np.ndarray, lam: float, start_name: str) -> FitReport:
-    """M5's residuals ``u_k - R_k^T u_(k-1)`` minimised with Tikhonov on ``theta - theta0``."""
-
-    def model_of(theta: np.ndarray) -> SensorModel:
-        return gyro_model_of(theta, bias, s0)
-
-    def res(theta: np.ndarray) -> np.ndarray:
-        return (u_meas - tr.predict(model_of(theta), u_prev)).ravel()
-
-    def jac(theta: np.ndarray) -> np.ndarray:
-        return tr.jacobian(model_of, theta, u_prev)
-
-    return fit_tikhonov(res, jac, start, theta0, lam, start_name=start_name)
-
-
-def _held_out_angles(tr: Transitions, report: FitReport, theta0: np.ndarray, lam: float,
-                     u_prev: np.ndarray, u_meas: np.ndarray, bias: np.ndarray, s0: float,
-                     folds: np.ndarray, n_folds: int) -> np.ndarray:
-    """Angle (deg) between each turn's measured gravity direction and its prediction (M5) by
-    the fit refitted without the turn's fold (:func:`~imucal.numerics.kfold.kfold_refits`:
-    the refits' first Gauss-Newton step from the full fit, as good as refits run to
-    convergence here); the predictions are integrated exactly, every turn with its own fold's
-    model, in one pass."""
-    q = tr.rotations(gyro_model_of(report.theta, bias, s0))
-    r = (u_meas - rotate_inverse(q, u_prev)).ravel()
-    thetas = kfold_refits(report.jac, r, report.theta, theta0, lam, np.repeat(folds, 3),
-                          n_folds)
-    models = [gyro_model_of(th, bias, s0) for th in thetas]
-    M = np.array([m.matrix for m in models])[folds]
-    b = np.array([m.b for m in models])[folds]
-    return angle_between(u_meas, rotate_inverse(tr.rotations_each(M, b), u_prev))
 
 
 def _standard_errors(report: FitReport, gravity: np.ndarray,
