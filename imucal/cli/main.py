@@ -74,10 +74,8 @@ def main(argv: list[str] | None = None, *, command: str | None = None,
             signal.signal(signal.SIGTERM, old_term)
 
 
-def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
-    import warnings
-
-    args = sys.argv[1:] if argv is None else list(argv)
+def _setup_process() -> None:
+    """What a command-line run of imucal sets for its process before any work."""
     # The fits work on small matrices: a second BLAS thread only spins (measured in bench/:
     # 1.5 s CPU for 0.8 s wall on a 60-minute session). Set before numpy is first imported;
     # a user's own setting wins.
@@ -94,6 +92,14 @@ def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(AttributeError, ValueError, OSError):
             stream.reconfigure(errors="backslashreplace")
+
+
+def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
+    """Run the command line; every outcome becomes an exit code and at most one line."""
+    import warnings
+
+    args = sys.argv[1:] if argv is None else list(argv)
+    _setup_process()
     debug = os.environ.get("IMUCAL_DEBUG", "") not in ("", "0")
     if not debug:
         warnings.showwarning = functools.partial(_show_warning, prog=prog)
