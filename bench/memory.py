@@ -50,7 +50,7 @@ def main() -> None:
         setattr(load, name, _probed(f"load: {name}", getattr(load, name)))
     for name in ("tune_detector", "_drop_saturated", "calibrate_accelerometer",
                  "block_mean_variance", "group_blocks", "block_mean_cov", "calibrate_gyroscope",
-                 "leave_one_block_out", "quality_figures"):
+                 "leave_one_block_out", "quality_figures", "recording_guide"):
         setattr(pipeline, name, _probed(name, getattr(pipeline, name)))
     apply.Calibration.apply = _probed("apply", apply.Calibration.apply)
 
@@ -68,6 +68,15 @@ def main() -> None:
     peak = max([peak, *_PEAKS])
     print(f"| **calibrate** | {held / MB:.0f} | {after / MB:.0f} | {peak / MB:.0f} | "
           f"+{(peak - held) / MB:.0f} |")
+    # What calib.json adds: the noise figures (on the calibrated still samples) and the dict.
+    from imucal.io.calibration_file import result_to_dict
+
+    held = after
+    tracemalloc.reset_peak()
+    result_to_dict(result)
+    after, peak = tracemalloc.get_traced_memory()
+    print(f"| **calib.json (noise, dict)** | {held / MB:.0f} | {after / MB:.0f} | "
+          f"{peak / MB:.0f} | +{(peak - held) / MB:.0f} |")
     del result
 
 

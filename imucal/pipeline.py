@@ -36,7 +36,7 @@ from imucal.stages.sanity import (
     turns_without_gyro,
     unwrap_session,
 )
-from imucal.stages.saturation import blocks_with, saturated_mask
+from imucal.stages.saturation import blocks_meeting, saturated_mask, saturated_runs
 from imucal.warning import RunWarning
 
 
@@ -117,18 +117,21 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                      gyro=s.gyro.model if s.gyro else None) for s in segments),
         acc_unit_raw=session.acc_unit, acc_unit=acc_unit, g=g_out,
         gyro_unit_raw=session.gyro_unit if session.has_gyro else None)
-    calibrated = calibration.apply(session)
-    quality = quality_figures(session, det, calibrated,
+    # The calibrated signals are never made whole here (at 6 h and 1 kHz they are 1 GB): the
+    # figures read them a run of blocks or a chunk at a time, bit for bit the same rows
+    # (Calibration.rows); Result.calibrated makes them on request.
+    quality = quality_figures(session, det, functools.partial(calibration.rows, session, "acc"),
                               [s.gyro for s in segments if s.gyro is not None],
                               np.concatenate([s.acc_cv.block_error_mg for s in segments]),
                               g_in, g_out)  # §5
+    gyro_rows = (functools.partial(calibration.rows, session, "gyro")
+                 if calibration.applies_gyro(session) else None)
     guide = recording_guide(session, det, block_times, np.concatenate(
         [s.acc.model.apply(det.means[s.blocks[0]:s.blocks[1]]) for s in segments]),
-        [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None], calibrated.gyro_norm)
+        [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None], gyro_rows)
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
-                  calibrated=calibrated, quality=quality, g_in=g_in, warnings=warnings,
-                  guide=guide)
+                  quality=quality, g_in=g_in, warnings=warnings, guide=guide)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -221,7 +224,7 @@ def _segment_warnings(seg: Segment, where: int | None) -> list[RunWarning]:
 def _drop_saturated(acc: np.ndarray, det: Detection) -> tuple[Detection, int]:
     if len(det.blocks) == 0:
         return det, 0
-    bad = blocks_with(saturated_mask(acc), det.blocks)
+    bad = blocks_meeting(saturated_runs(acc), det.blocks)  # chunked: no mask of the signal
     if not bad.any():
         return det, 0
     keep = ~bad

@@ -122,9 +122,17 @@ def _compare_rate(t: np.ndarray, part: Part, notes: list[str]) -> None:
 def _counts_samples(time: np.ndarray, part: Part, opts: LoadOptions) -> bool:
     """Integers in steps of exactly 1 in a time column that would be read in seconds."""
     if (part.time_unit is not None or part.time_is_datetime or opts.time_unit != "s"
-            or time.size < 2 or not np.isfinite(time).all()):
+            or time.size < 2 or not _chunks_all(time, np.isfinite, 0)):
         return False
-    return bool(np.all(np.diff(time) == 1) and float(time[0]).is_integer())
+    return bool(_chunks_all(time, lambda c: np.diff(c) == 1, 1)
+                and float(time[0]).is_integer())
+
+
+def _chunks_all(t: np.ndarray, test, overlap: int, chunk: int = 1 << 18) -> bool:
+    """``np.all(test(t))`` a chunk at a time (``overlap`` rows shared with the next chunk, for
+    a test on steps), stopping at the first chunk that fails: no array the length of ``t``."""
+    return all(bool(np.all(test(t[c0:c0 + chunk + overlap])))
+               for c0 in range(0, max(len(t) - overlap, 1), chunk))
 
 
 def _time_unit(part: Part, opts: LoadOptions) -> str:
@@ -164,21 +172,27 @@ def _unit_from_steps(time: np.ndarray, part: Part, opts: LoadOptions) -> str:
     return "s"
 
 
-def _check_timestamps(t: np.ndarray, label: str, source: str) -> None:
-    finite = np.isfinite(t)
-    if not finite.all():
-        i = int(np.flatnonzero(~finite)[0])
-        raise ImucalError(f"{label} timestamp at index {i} is {float(t[i])}; expected finite, "
-                          "increasing times", source=source, field="time")
-    with np.errstate(over="ignore", invalid="ignore"):
-        step = np.diff(t)
-    bad = np.flatnonzero(~(step > 0))
-    if bad.size:
-        i = int(bad[0]) + 1
-        kind = "duplicated" if step[i - 1] == 0 else "not increasing"
-        raise ImucalError(f"{label} timestamps {kind} at index {i} ({float(t[i - 1])!r} then "
-                          f"{float(t[i])!r}); expected strictly increasing times",
-                          source=source, field="time")
+def _check_timestamps(t: np.ndarray, label: str, source: str, chunk: int = 1 << 18) -> None:
+    """Finite, strictly increasing times, or one error naming the first bad index. Read a
+    chunk at a time (each chunk's steps start from the last time of the one before): the same
+    first bad index and message as ``np.diff`` of the whole, without its copy of the times."""
+    for c0 in range(0, len(t), chunk):
+        part = t[c0:c0 + chunk]
+        finite = np.isfinite(part)
+        if not finite.all():
+            i = c0 + int(np.flatnonzero(~finite)[0])
+            raise ImucalError(f"{label} timestamp at index {i} is {float(t[i])}; expected "
+                              "finite, increasing times", source=source, field="time")
+    for c0 in range(0, max(len(t) - 1, 0), chunk):
+        with np.errstate(over="ignore", invalid="ignore"):
+            step = np.diff(t[c0:c0 + chunk + 1])
+        bad = np.flatnonzero(~(step > 0))
+        if bad.size:
+            i = c0 + int(bad[0]) + 1
+            kind = "duplicated" if step[i - 1 - c0] == 0 else "not increasing"
+            raise ImucalError(f"{label} timestamps {kind} at index {i} ({float(t[i - 1])!r} "
+                              f"then {float(t[i])!r}); expected strictly increasing times",
+                              source=source, field="time")
 
 
 def _bridge_gaps(values: np.ndarray, t: np.ndarray, label: str, source: str,

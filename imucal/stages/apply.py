@@ -101,10 +101,25 @@ class Calibration:
         self.check_units(session)
         acc = _apply_piecewise(session.acc, session.t_acc, self.segments, "acc")
         gyro = None
-        if session.has_gyro and all(s.gyro is not None for s in self.segments):
+        if self.applies_gyro(session):
             gyro = _apply_piecewise(session.gyro, session.t_gyro, self.segments, "gyro")
         return CalibratedSignals(t_acc=session.t_acc, acc=acc, t_gyro=session.t_gyro,
                                  gyro=gyro, acc_unit=self.acc_unit)
+
+    def applies_gyro(self, session: Session) -> bool:
+        """Does :meth:`apply` calibrate this session's gyroscope (a model in every segment)?"""
+        return session.has_gyro and all(s.gyro is not None for s in self.segments)
+
+    def rows(self, session: Session, which: str, lo: int, hi: int) -> np.ndarray:
+        """Calibrated rows ``[lo, hi)`` of the accelerometer (``which="acc"``) or the
+        gyroscope (``"gyro"``): bit for bit ``self.apply(session).acc[lo:hi]`` (or ``.gyro``),
+        without the signal-sized array, for the stages that read the calibrated signals a block
+        or a turn at a time (quality, guide, noise)."""
+        if which == "acc":
+            return _apply_rows(session.acc, session.t_acc, self.segments, "acc", lo, hi)
+        if not self.applies_gyro(session):
+            raise ValueError("no calibrated gyroscope in this calibration or session")
+        return _apply_rows(session.gyro, session.t_gyro, self.segments, "gyro", lo, hi)
 
 
 @dataclass(frozen=True)
@@ -124,6 +139,26 @@ class CalibratedSignals:
         return None if self.gyro is None else np.linalg.norm(self.gyro, axis=1)
 
 
+def _pieces(t: np.ndarray, segments: tuple[SegmentModels, ...],
+            which: str) -> list[tuple[int, int, SensorModel]]:
+    """``[lo, hi)`` sample ranges of ``t`` and the model applied to each: segment i owns
+    ``[t_start_i, t_end_i]``, the gap between i and i + 1 takes the mean of their models."""
+    n_seg = len(segments)
+    models = [getattr(s, which) for s in segments]
+    starts = [-np.inf] + [s.t_start for s in segments[1:]]
+    ends = [s.t_end for s in segments[:-1]] + [np.inf]
+    out = []
+    for i in range(n_seg):
+        lo = int(np.searchsorted(t, starts[i], side="left"))
+        hi = int(np.searchsorted(t, ends[i], side="right"))
+        out.append((lo, hi, models[i]))
+        if i + 1 < n_seg:
+            g_hi = int(np.searchsorted(t, starts[i + 1], side="left"))
+            if g_hi > hi:
+                out.append((hi, g_hi, SensorModel.mean(models[i], models[i + 1])))
+    return out
+
+
 def _apply_piecewise(raw: np.ndarray, t: np.ndarray, segments: tuple[SegmentModels, ...],
                      which: str) -> np.ndarray:
     """Each sample through its segment's model, or the mean of the neighbours' in a gap.
@@ -132,21 +167,32 @@ def _apply_piecewise(raw: np.ndarray, t: np.ndarray, segments: tuple[SegmentMode
     work is one matrix product per piece, not per sample.
     """
     out = np.empty(raw.shape, dtype=np.float64)
-    n_seg = len(segments)
-    models = [getattr(s, which) for s in segments]
-    # Piece boundaries: segment i owns [start_i, end_i]; gap i (between i and i+1) the rest.
-    starts = [-np.inf] + [s.t_start for s in segments[1:]]
-    ends = [s.t_end for s in segments[:-1]] + [np.inf]
-    for i in range(n_seg):
-        lo = np.searchsorted(t, starts[i], side="left")
-        hi = np.searchsorted(t, ends[i], side="right")
-        _apply_into(models[i], raw[lo:hi], out[lo:hi])
-        if i + 1 < n_seg:
-            g_hi = np.searchsorted(t, starts[i + 1], side="left")
-            if g_hi > hi:
-                _apply_into(SensorModel.mean(models[i], models[i + 1]), raw[hi:g_hi],
-                            out[hi:g_hi])
+    for lo, hi, model in _pieces(t, segments, which):
+        _apply_into(model, raw[lo:hi], out[lo:hi])
     return out
+
+
+def _apply_rows(raw: np.ndarray, t: np.ndarray, segments: tuple[SegmentModels, ...],
+                which: str, lo: int, hi: int) -> np.ndarray:
+    """Rows ``[lo, hi)`` of :func:`_apply_piecewise`, the same to the bit: each piece is
+    computed over the chunks of the whole's grid (``CHUNK_ROWS`` from the piece's start) that
+    meet ``[lo, hi)``, so every matrix product is the one the whole makes (the same rows, the
+    same shapes) and none depends on how BLAS treats a shorter or shifted block."""
+    pieces = [(p0, p1, m) for p0, p1, m in _pieces(t, segments, which)
+              if max(p0, lo) < min(p1, hi)]
+    out = None
+    if len(pieces) != 1 or not (pieces[0][0] <= lo and hi <= pieces[0][1]):
+        out = np.empty((max(hi - lo, 0),) + raw.shape[1:], dtype=np.float64)
+    for p0, p1, model in pieces:
+        a, b = max(p0, lo), min(p1, hi)
+        g0 = p0 + (a - p0) // CHUNK_ROWS * CHUNK_ROWS
+        g1 = min(p1, p0 + -(-(b - p0) // CHUNK_ROWS) * CHUNK_ROWS)
+        tmp = np.empty((g1 - g0,) + raw.shape[1:], dtype=np.float64)
+        _apply_into(model, raw[g0:g1], tmp)
+        if out is None:  # one piece holds [lo, hi): its rows, no second copy
+            return tmp[a - g0:b - g0]
+        out[a - lo:b - lo] = tmp[a - g0:b - g0]
+    return np.empty((0,) + raw.shape[1:]) if out is None else out
 
 
 CHUNK_ROWS = 1 << 16

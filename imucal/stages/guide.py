@@ -15,6 +15,7 @@ lack, and what to record next (issue 14, item 7). Pure arithmetic on what the ru
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +26,7 @@ from imucal.stages.accel_cv import COVERAGE_ANGLE_DEG, axis_words, coverage
 from imucal.stages.detect import Detection
 from imucal.stages.gyro import GyroFit
 from imucal.stages.gyro_transitions import angle_between, transition_samples
-from imucal.stages.saturation import saturated_mask
+from imucal.stages.saturation import CHUNK_ROWS, saturated_runs
 
 # A block shorter than this many times the detector's minimum is "near the minimum": a
 # slightly stricter detector (smaller k, a longer window) drops it, and its mean averages the
@@ -112,13 +113,14 @@ class Guide:
 
 def recording_guide(session: Session, det: Detection, block_times: np.ndarray,
                     gravity: np.ndarray, gyro_fits: list[tuple[int, GyroFit]],
-                    gyro_norm: np.ndarray | None) -> Guide:
+                    gyro_rows: Callable[[int, int], np.ndarray] | None) -> Guide:
     """The guide of a run: ``gravity`` (B, 3) each block's mean calibrated acceleration (its
     segment's model), ``gyro_fits`` each segment's first block index and gyroscope fit,
-    ``gyro_norm`` (M,) the calibrated ``|w|`` (None without a gyroscope)."""
+    ``gyro_rows(lo, hi)`` the calibrated gyroscope's rows (None without a gyroscope), read a
+    chunk at a time."""
     poses = _poses(gravity)
     holds = _holds(session, det)
-    turns = _turns(session, block_times, poses.gravity, gyro_fits, gyro_norm)
+    turns = _turns(session, block_times, poses.gravity, gyro_fits, gyro_rows)
     strong, weak, todo = _verdict(poses, holds, turns)
     return Guide(poses=poses, holds=holds, turns=turns, strong=strong, weak=weak,
                  record_next=todo)
@@ -161,19 +163,43 @@ def _holds(session: Session, det: Detection) -> HoldGuide:
                      recommended_s=(min_hold or min_s) + (NEAR_MIN_FACTOR - 1) * min_s)
 
 
+def _peak_rates(rows: Callable[[int, int], np.ndarray], starts: np.ndarray, ends: np.ndarray,
+                n: int, chunk: int = 1 << 16) -> np.ndarray:
+    """Largest calibrated ``|w|`` over each turn's samples ``[starts[k], ends[k])`` (both
+    sorted, each turn one sample or more), from ``rows(lo, hi)`` of the signal (``n`` rows) a
+    chunk at a time: one chunk's norm at once, never the signal's (a maximum is exact in any
+    order). A loop over chunks and the turns meeting each (tens to hundreds): linear time."""
+    peak = np.full(len(starts), -np.inf)
+    if len(starts) == 0:
+        return peak
+    first = int(starts[0]) // chunk * chunk  # on the calibration's chunk grid: no extra rows
+    for c0 in range(first, min(int(ends[-1]), n), chunk):
+        c1 = min(n, c0 + chunk)
+        k0 = int(np.searchsorted(ends, c0, side="right"))  # turns ending after c0
+        k1 = int(np.searchsorted(starts, c1, side="left"))  # turns starting before c1
+        if k1 <= k0:
+            continue
+        norm = np.linalg.norm(rows(c0, c1), axis=1)
+        for k in range(k0, k1):
+            a, b = max(int(starts[k]), c0), min(int(ends[k]), c1)
+            if b > a:
+                peak[k] = np.maximum(peak[k], norm[a - c0:b - c0].max())
+    return peak
+
+
 def _turns(session: Session, block_times: np.ndarray, u: np.ndarray,
-           gyro_fits: list[tuple[int, GyroFit]], gyro_norm: np.ndarray | None) -> TurnGuide:
+           gyro_fits: list[tuple[int, GyroFit]],
+           gyro_rows: Callable[[int, int], np.ndarray] | None) -> TurnGuide:
     K = max(len(block_times) - 1, 0)
     tilt = angle_between(u[1:], u[:-1]) if K else np.zeros(0)  # deg
-    if not session.has_gyro or gyro_norm is None or not gyro_fits or K == 0:
+    if not session.has_gyro or gyro_rows is None or not gyro_fits or K == 0:
         empty = np.zeros(0)
         return TurnGuide(np.zeros((0, 2)), empty, empty, empty, float("nan"), "no gyroscope",
                          None, "no gyroscope", MIN_TILT_DEG, empty.astype(bool),
                          empty.astype(bool), empty.astype(bool))
     t = session.t_gyro
     s, e = transition_samples(t, block_times)
-    # A loop over turns (tens to hundreds), each a slice of the signal: linear in its length.
-    peak = np.array([float(gyro_norm[a:b + 1].max()) for a, b in zip(s, e)])
+    peak = _peak_rates(gyro_rows, s, e + 1, len(t))
     angle = np.full(K, np.nan)
     saturated = np.zeros(K, dtype=bool)
     for b0, fit in gyro_fits:  # segment turns: b0 .. b0 + len - 1; between segments: none
@@ -202,12 +228,13 @@ def gyro_full_scale(session: Session, fit: GyroFit) -> tuple[float | None, str]:
     zero = fit.model.b
     levels = []
     for axis in range(3):  # the level each clipped axis sits at, from its zero
-        flat = saturated_mask(w[:, [axis]])
-        if flat.any():
-            levels.append(np.abs(w[flat, axis] - zero[axis]).min() * per_unit)
+        runs = saturated_runs(w[:, [axis]])  # a chunk at a time: no mask of the signal
+        if len(runs):
+            levels.append(min(np.abs(w[a:b, axis] - zero[axis]).min() for a, b in runs)
+                          * per_unit)
     if levels:
         return float(min(levels)), "the level the gyroscope clipped at here"
-    if session.gyro_unit == "counts" and np.all(w == np.round(w)):
+    if session.gyro_unit == "counts" and _integers(w):
         lo, hi = float(w.min()), float(w.max())
         for a, b in CODE_RANGES:
             if a <= lo and hi <= b:
@@ -215,6 +242,12 @@ def gyro_full_scale(session: Session, fit: GyroFit) -> tuple[float | None, str]:
                 return float(edge), (f"at most the edge of its {int(b - a + 1)} integer "
                                      "codes from its zero")
     return None, "not known: the gyroscope never clipped and its unit is not raw codes"
+
+
+def _integers(w: np.ndarray) -> bool:
+    """Is every value a whole number? (a chunk of rows at a time)"""
+    return all(np.all(c == np.round(c)) for c in
+               (w[i:i + CHUNK_ROWS] for i in range(0, len(w), CHUNK_ROWS)))
 
 
 def _verdict(poses: PoseGuide, holds: HoldGuide, turns: TurnGuide

@@ -71,3 +71,32 @@ def test_different_time_arrays_stay_apart(tmp_path) -> None:
     session = load_session(path)
     assert session.t_gyro is not session.t_acc
     assert session.t_gyro[0] == 1e-4 and session.t_acc[0] == 0.0
+
+
+def test_unit_guesses_are_numpys_order_statistics_without_a_copy() -> None:
+    """The gyroscope's median and 99.5th percentile of |w| and the accelerometer's median
+    norm, found in blocks of rows from a bracket: numpy's values to the bit (ties, heavy
+    tails, odd and even counts), allocating far less than the (N, 3) copy they replace."""
+    from imucal.io.units import _median_row_norm, abs_median_p995
+
+    rng = np.random.default_rng(5)
+    for n, kind in [(5 * N, "normal"), (5 * N + 1, "ties"), (5 * N - 1, "tails")]:
+        x = rng.normal(0.0, 1.0, (n, 3))
+        if kind == "ties":
+            x = np.round(x * 4)
+        elif kind == "tails":
+            x = rng.standard_t(2, (n, 3))
+        magnitude = np.abs(x)
+        want = (float(np.median(magnitude)), float(np.percentile(magnitude, 99.5)))
+        del magnitude
+        tracemalloc.start()
+        try:
+            got = abs_median_p995(x, small=0)
+            _, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        assert got == want, kind
+        # The copy was 1.0x; ties keep every value equal to a bracket's edge (one level of 4
+        # per unit here holds ~10 % of the values).
+        assert peak < (0.5 if kind == "ties" else 0.25) * x.nbytes, (kind, peak / x.nbytes)
+        assert _median_row_norm(x, small=0) == float(np.median(np.linalg.norm(x, axis=1)))

@@ -63,3 +63,27 @@ def test_detector_bin_sums_are_the_whole_array_sums_without_a_copy() -> None:
     assert np.array_equal(pre.s1, np.concatenate([np.zeros((1, 3)), np.cumsum(sums, axis=0)]))
     # The running sums themselves are N / d rows; the centred copy was N.
     assert peak < 0.2 * x.nbytes + 2 * pre.s1.nbytes
+
+
+def test_saturated_runs_are_the_mask_a_chunk_at_a_time() -> None:
+    from imucal.numerics.windows import mask_of_runs, runs_of_true
+    from imucal.stages.saturation import blocks_meeting, blocks_with, saturated_runs
+
+    x, blocks = _signal()
+    # Flat runs at an axis's extreme: across chunk edges (4096), one too short, one at the end.
+    x[4090:4200, 0] = 0.5
+    x[8190:8195, 2] = 0.5
+    x[20_000:20_004, 1] = -0.5  # 4 samples: not saturated
+    x[N - 7:, 1] = 0.5
+    x[500_000:500_050, 1] = 0.5
+    whole = np.zeros(N, dtype=bool)  # the whole-signal rule: runs of 5+ at an axis's extreme
+    for axis in range(3):
+        for extreme in (x[:, axis].max(), x[:, axis].min()):
+            r = runs_of_true(x[:, axis] == extreme)
+            whole |= mask_of_runs(r[(r[:, 1] - r[:, 0]) >= 5], N)
+    assert whole.any()
+    runs, peak = _peak(saturated_runs, x, 5, 4096)  # small chunks: many runs cross an edge
+    np.testing.assert_array_equal(mask_of_runs(runs, N), whole)
+    assert np.all(runs[1:, 0] > runs[:-1, 1])  # sorted and disjoint
+    assert peak < N  # less than a boolean mask of the signal
+    np.testing.assert_array_equal(blocks_meeting(runs, blocks), blocks_with(whole, blocks))
