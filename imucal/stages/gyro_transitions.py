@@ -1,6 +1,7 @@
 """The motions between still poses, integrated (method.md §4, M5): each transition's gyroscope
-samples laid out once, so every evaluation of the gyroscope cost integrates all of them at once
-(RK4 on quaternions, vectorised across transitions), and its sensitivity to the parameters.
+samples laid out once (where to find them; each slab is gathered when read), so every evaluation
+of the gyroscope cost integrates all of them at once (RK4 on quaternions, vectorised across
+transitions), and its sensitivity to the parameters.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ class Transitions:
     Transition k runs from the end of block k to the start of block k+1. Its RK4 steps are laid
     out time-major with the other transitions of similar length (:class:`StepLayout`; identity
     steps pad the shorter ones), so every cost evaluation is a handful of vector operations over
-    all transitions (M5), and the model is applied to the raw rates slab by slab.
+    all transitions (M5), and the model is applied to the raw rates slab by slab, each slab
+    gathered from the session's array when it is read (only a slab of the turns is held).
     """
 
     def __init__(self, w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,

@@ -20,6 +20,8 @@ class StepLayout:
     transitions ``idx`` as time-major arrays: the sample index of every step's start (``i0``,
     (L + 1, K_b): the last row is the end of the last step), which of those samples belong to
     the transition (``valid``), and every step's ``dt`` (L, K_b; 0 for padding) and ``dt^2``.
+    With ``lazy``, a bucket keeps none of these arrays (:mod:`.lazy`): ``dt`` and ``dt2`` and
+    :meth:`lazy_samples` are gathered a slab of rows at a time when read.
     """
 
     def __init__(self, t: np.ndarray, starts: np.ndarray, ends: np.ndarray, lazy: bool = False):
