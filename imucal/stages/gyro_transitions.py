@@ -1,6 +1,7 @@
 """The motions between still poses, integrated (method.md §4, M5): each transition's gyroscope
-samples laid out once, so every evaluation of the gyroscope cost integrates all of them at once
-(RK4 on quaternions, vectorised across transitions), and its sensitivity to the parameters.
+samples laid out once (where to find them; each slab is gathered when read), so every evaluation
+of the gyroscope cost integrates all of them at once (RK4 on quaternions, vectorised across
+transitions), and its sensitivity to the parameters.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ class Transitions:
     Transition k runs from the end of block k to the start of block k+1. Its RK4 steps are laid
     out time-major with the other transitions of similar length (:class:`StepLayout`; identity
     steps pad the shorter ones), so every cost evaluation is a handful of vector operations over
-    all transitions (M5), and the model is applied to the raw rates slab by slab.
+    all transitions (M5), and the model is applied to the raw rates slab by slab, each slab
+    gathered from the session's array when it is read (only a slab of the turns is held).
     """
 
     def __init__(self, w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray,
@@ -39,15 +41,11 @@ class Transitions:
             s, e = s[keep], e[keep]
         self.starts, self.ends = s, e
         self.n_steps = e - s
-        self.layout = StepLayout(t, s, e)
-        # Gathered per bucket into contiguous component arrays (the hot loop is elementwise),
-        # straight from column views, = layout.gather([w_raw[:, i] for i in range(3)]) with
-        # no full-length column copies; a bucket's sample indices are dropped once used.
-        comps = [np.asarray(w_raw[:, i], dtype=float) for i in range(3)]
-        self.rates = []
-        for k, b in enumerate(self.layout.buckets):
-            self.rates.append(tuple(_gathered(c, b.i0, b.valid) for c in comps))
-            self.layout.buckets[k] = b._replace(i0=None, valid=None)
+        # Nothing the size of the turns is kept: each slab of samples (and of step times) is
+        # gathered from the session's columns when an integration or the Jacobian reads it
+        # (numerics/rk4/lazy.py; the same values to the bit as gathered once).
+        self.layout = StepLayout(t, s, e, lazy=True)
+        self.rates = self.layout.lazy_samples([w_raw[:, i] for i in range(3)])
 
     def __len__(self) -> int:
         return len(self.starts)
@@ -119,7 +117,7 @@ class Transitions:
             rows = max(1, SLAB // max(dt.shape[1], 1))  # a slab at a time: temporaries stay small
             for r0 in range(0, dt.shape[0] if dt.size else 0, rows):
                 sl = slice(r0, min(r0 + rows, dt.shape[0]))
-                c = cal(tuple(x[sl, None, :] for x in w))
+                c = cal(tuple(x[sl][:, None, :] for x in w))
                 norm = np.sqrt(c[0] ** 2 + c[1] ** 2 + c[2] ** 2)[:, 0, :]
                 out = max(out, float(np.max(norm * dt[sl])))
         return out
@@ -134,46 +132,50 @@ class Transitions:
         ``A = h^2 |d0 + d1|^2 / 16`` and ``B = h^2 (d0 . d1) / 96``, all precomputed here, so an
         evaluation costs about two thirds of a general one (the products of the steps remain).
         """
-        pre = []
-        for (idx, _, _, dt, dt2), w in zip(self.layout.buckets, self.rates):
-            d = [x - b for x, b in zip(w, np.asarray(bias, float).tolist())]
+        bias = np.asarray(bias, float).tolist()
+        n = len(self)
+
+        def slab(w, dt, dt2, sl: slice) -> tuple:
+            # The data-only coefficients of rows ``sl`` of the steps, made when used (a slab of
+            # the turns at a time), the same values as made for the whole bucket at once.
+            d = [x[sl.start:sl.stop + 1] - b for x, b in zip(w, bias)]
             d0 = [x[:-1] for x in d]
             d1 = [x[1:] for x in d]
             sd = [a + c for a, c in zip(d0, d1)]
             cd = [d0[1] * d1[2] - d0[2] * d1[1], d0[2] * d1[0] - d0[0] * d1[2],
                   d0[0] * d1[1] - d0[1] * d1[0]]
-            A = dt2 * (sd[0] * sd[0] + sd[1] * sd[1] + sd[2] * sd[2]) / 16.0
-            B = dt2 * (d0[0] * d1[0] + d0[1] * d1[1] + d0[2] * d1[2]) / 96.0
-            pre.append((idx, sd, cd, A, B, dt / 4.0, dt2 / 24.0))
-        n = len(self)
+            h2 = dt2[sl]
+            A = h2 * (sd[0] * sd[0] + sd[1] * sd[1] + sd[2] * sd[2]) / 16.0
+            B = h2 * (d0[0] * d1[0] + d0[1] * d1[1] + d0[2] * d1[2]) / 96.0
+            return sd, cd, A, B, dt[sl] / 4.0, h2 / 24.0
 
         def rotations(scale: float) -> np.ndarray:
             sc, sc2 = float(scale), float(scale) ** 2
             out = np.empty((n, 4))
             out[:] = (1.0, 0.0, 0.0, 0.0)
-            for idx, sd, cd, A, B, h4, h24 in pre:
-                L, kb = A.shape
+            for (idx, _, _, dt, dt2), w in zip(self.layout.buckets, self.rates):
+                L, kb = dt.shape
                 rows = max(1, SLAB // max(kb, 1))
                 acc = None
                 for r0 in range(0, L, rows):
-                    sl = slice(r0, r0 + rows)
-                    e = A[sl] * sc2
-                    pw = B[sl] * sc2
+                    sd, cd, A, B, h4, h24 = slab(w, dt, dt2, slice(r0, min(r0 + rows, L)))
+                    e = A * sc2
+                    pw = B * sc2
                     pw -= 0.5
                     pw *= e
                     pw += 1.0
                     al = e * (-1.0 / 6.0)
                     al += 1.0
-                    al *= h4[sl]
+                    al *= h4
                     al *= sc
                     be = e * -0.25
                     be += 1.0
-                    be *= h24[sl]
+                    be *= h24
                     be *= sc2
                     pv = []
                     for i in range(3):
-                        v = sd[i][sl] * al
-                        v += cd[i][sl] * be
+                        v = sd[i] * al
+                        v += cd[i] * be
                         pv.append(v)
                     q = product_rows((pw, *pv))
                     acc = q if acc is None else mul(acc, q)
@@ -186,16 +188,11 @@ class Transitions:
         """Integral of the norm of the bias-free raw rate over each transition (K,)."""
         out = np.zeros(len(self))
         for (idx, _, _, dt, _), w in zip(self.layout.buckets, self.rates):
+            # A bucket at a time, whole (np.sum's order over rows): run once, before the fit.
+            w = [x[:] for x in w]
             d = [0.5 * (x[:-1] + x[1:]) - b for x, b in zip(w, bias)]
-            out[idx] = np.sum(np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * dt, axis=0)
+            out[idx] = np.sum(np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * dt[:], axis=0)
         return out
-
-
-def _gathered(c: np.ndarray, i0: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """``np.where(valid, c[i0], 0.0)`` without its second temporary."""
-    out = c[i0]
-    out[~valid] = 0.0
-    return out
 
 
 def gyro_model_of(theta: np.ndarray, static_bias: np.ndarray, s0: float) -> SensorModel:

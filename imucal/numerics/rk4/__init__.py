@@ -18,6 +18,7 @@ One idea per module, from the bottom up:
 - :mod:`.rotation_matrix`: rotation matrices of component quaternions, in place;
 - :mod:`.affine`: the rate model ``w = M (w_raw - b)`` (M4) for several models at once;
 - :mod:`.buckets`: intervals grouped by length and laid out time-major, ``(L, K)``;
+- :mod:`.lazy`: a bucket's samples and step times gathered a slab of rows at a time, on request;
 - :mod:`.integrate`: every interval's rotation under several models, a slab of rows at a time;
 - :mod:`.variational`: the rotation's sensitivity to the model (a fit's Jacobian);
 - :mod:`.layout`: :class:`StepLayout`, the steps laid out once and integrated many times.

@@ -41,12 +41,12 @@ def integrate_buckets(buckets: list[Bucket], n: int, samples: list[Vec],
         acc = None
         for r0 in range(0, L, rows):
             r1 = min(r0 + rows, L)
-            c = tuple(x[r0:r1 + 1, None, :] for x in w)
+            c = tuple(x[r0:r1 + 1][:, None, :] for x in w)  # a lazy bucket gathers here
             if cal is not None:
                 c = cal(c)
             a = tuple(x[:-1] for x in c)
             b = tuple(x[1:] for x in c)
-            q = product_rows(rk4_raw(a, b, dt[r0:r1, None, :], dt2[r0:r1, None, :]))
+            q = product_rows(rk4_raw(a, b, dt[r0:r1][:, None, :], dt2[r0:r1][:, None, :]))
             acc = q if acc is None else mul(acc, q)
         out[:, idx] = np.stack(np.broadcast_arrays(*acc), axis=-1)
     return out / np.linalg.norm(out, axis=-1, keepdims=True)

@@ -8,6 +8,7 @@ import numpy as np
 from imucal.numerics.rk4.buckets import lay_out, length_buckets
 from imucal.numerics.rk4.hamilton import Vec
 from imucal.numerics.rk4.integrate import integrate_buckets
+from imucal.numerics.rk4.lazy import lay_out_lazy, lazy_samples
 from imucal.numerics.rk4.variational import sensitivity
 
 
@@ -19,21 +20,32 @@ class StepLayout:
     transitions ``idx`` as time-major arrays: the sample index of every step's start (``i0``,
     (L + 1, K_b): the last row is the end of the last step), which of those samples belong to
     the transition (``valid``), and every step's ``dt`` (L, K_b; 0 for padding) and ``dt^2``.
+    With ``lazy``, a bucket keeps none of these arrays (:mod:`.lazy`): ``dt`` and ``dt2`` and
+    :meth:`lazy_samples` are gathered a slab of rows at a time when read.
     """
 
-    def __init__(self, t: np.ndarray, starts: np.ndarray, ends: np.ndarray):
+    def __init__(self, t: np.ndarray, starts: np.ndarray, ends: np.ndarray, lazy: bool = False):
         t = np.asarray(t, float)
         self.starts = np.asarray(starts, np.int64)
         self.ends = np.asarray(ends, np.int64)
         self.n = len(self.starts)
+        self.last = len(t) - 1
         n_steps = self.ends - self.starts
-        self.buckets = [lay_out(t, self.starts, n_steps, idx) for idx in length_buckets(n_steps)]
+        # lazy: nothing the size of the steps is kept; slabs are gathered when integrated
+        # (:mod:`.lazy`, the same values to the bit)
+        make = lay_out_lazy if lazy else lay_out
+        self.buckets = [make(t, self.starts, n_steps, idx) for idx in length_buckets(n_steps)]
 
     def gather(self, comps: list[np.ndarray]) -> list[Vec]:
         """The samples of every transition, per bucket ((L + 1, K_b) per component, zero in the
         padding): step j runs from row j to row j + 1, so each sample is calibrated once."""
         return [tuple(np.where(valid, c[i0], 0.0) for c in comps)
                 for _, i0, valid, _, _ in self.buckets]
+
+    def lazy_samples(self, comps: list[np.ndarray]) -> list[Vec]:
+        """:meth:`gather`'s samples of a lazy layout, gathered a slab at a time when read
+        (``comps`` are kept as they are: pass views of the session's columns)."""
+        return [lazy_samples(b, comps, self.last) for b in self.buckets]
 
     def integrate(self, samples: list[Vec], models: list[tuple] | None = None) -> np.ndarray:
         """Quaternions (k, K, 4), normalised, of every transition under each of k models

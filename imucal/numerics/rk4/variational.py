@@ -85,7 +85,7 @@ def _bucket_sensitivity(w: Vec, b: list[float], cal, dt: np.ndarray, dt2: np.nda
     R = np.empty((kb, 9, min(rows, L)))
     for r0 in range(0, L, rows):
         r1 = min(r0 + rows, L)
-        om = tuple(x[:, 0, :] for x in cal(tuple(x[r0:r1 + 1, None, :] for x in w)))
+        om = tuple(x[:, 0, :] for x in cal(tuple(x[r0:r1 + 1][:, None, :] for x in w)))
         P = rk4_raw(tuple(x[:-1] for x in om), tuple(x[1:] for x in om), dt[r0:r1], dt2[r0:r1])
         Q = prefix_rows(P)  # orientation at samples r0 + 1 .. r1 relative to r0
         Rs = R[:, :, :r1 - r0]
