@@ -81,8 +81,8 @@ def median_step(t: np.ndarray, ranges: Iterable[tuple[int, int]]) -> float:
 # a sample quantile's rank) bracket the middle ranks; a second pass counts the values below the
 # bracket and at its two ends, and keeps only those strictly inside it; the middle ranks are
 # picked from those (np.partition) and averaged as numpy does (the mean of the two middle values
-# for an even count). Ties at the bracket's ends are counted, not kept, so a clock's constant
-# step costs nothing. Where the bracket misses (a sample periodic with the values could make
+# for an even count). Values the sample holds are counted, not kept, so a clock's few distinct
+# steps cost nothing. Where the bracket misses (a sample periodic with the values could make
 # it) or holds too many values, the copy is made. (The unit guesses of imucal/io/units.py do the
 # same for |x| and row norms, on rows of an array.)
 
@@ -96,8 +96,8 @@ def chunked_median(chunks: Callable[[], Iterable[np.ndarray]], n: int,
     once per pass, so it must start afresh each time)."""
     if n < small:
         return float(np.median(_whole(chunks)))
-    step = max(1, n // MEDIAN_SAMPLE)
-    sample = np.sort(np.concatenate([c[::step] for c in chunks()]))
+    step = max(1, n // MEDIAN_SAMPLE)  # copies of the strided views: no chunk is kept
+    sample = np.sort(np.concatenate([c[::step].copy() for c in chunks()]))
     if np.isnan(sample[-1]):
         return float("nan")
     ranks = [(n - 1) // 2, n // 2]
@@ -107,33 +107,34 @@ def chunked_median(chunks: Callable[[], Iterable[np.ndarray]], n: int,
     hi = int(np.ceil((ranks[1] / n + margin) * m))
     lo_v = sample[lo] if lo > 0 else -np.inf
     hi_v = sample[hi] if hi < m else np.inf
-    below = at_lo = at_hi = kept = 0
+    # The sample's own values inside the bracket are counted, not kept (a clock's few distinct
+    # steps cost nothing); only the other values inside it are kept.
+    known = np.unique(sample[(sample >= lo_v) & (sample <= hi_v)])
+    counts = np.zeros(len(known), dtype=np.int64)
+    below = kept = 0
     inside: list[np.ndarray] = []
     for c in chunks():
         if np.isnan(c).any():
             return float("nan")
         below += int(np.count_nonzero(c < lo_v))
-        at_lo += int(np.count_nonzero(c == lo_v))
-        at_hi += int(np.count_nonzero(c == hi_v)) if hi_v != lo_v else 0
-        got = c[(c > lo_v) & (c < hi_v)]
-        kept += len(got)
+        got = c[(c >= lo_v) & (c <= hi_v)]
+        pos = np.minimum(np.searchsorted(known, got), max(len(known) - 1, 0))
+        hit = known[pos] == got if len(known) else np.zeros(len(got), dtype=bool)
+        counts += np.bincount(pos[hit], minlength=len(known))
+        inside.append(got[~hit])
+        kept += len(inside[-1])
         if kept > n // 8:  # the bracket holds too much: no saving left
             return float(np.median(_whole(chunks)))
-        inside.append(got)
-    vals = np.concatenate(inside) if inside else np.zeros(0)
+    values = np.concatenate([known, *inside])
+    weights = np.concatenate([counts, np.ones(kept, dtype=np.int64)])
+    order = np.argsort(values, kind="stable")
+    ends = np.cumsum(weights[order])  # values[order[i]] holds ranks [ends[i - 1], ends[i])
     picked = []
     for r in ranks:
-        r -= below
-        if r < 0:
-            return float(np.median(_whole(chunks)))
-        if r < at_lo:
-            picked.append(float(lo_v))
-        elif r < at_lo + len(vals):
-            picked.append(float(np.partition(vals, r - at_lo)[r - at_lo]))
-        elif r < at_lo + len(vals) + at_hi:
-            picked.append(float(hi_v))
-        else:
-            return float(np.median(_whole(chunks)))
+        i = int(np.searchsorted(ends, r - below, side="right"))
+        if r < below or i >= len(order):
+            return float(np.median(_whole(chunks)))  # the bracket missed
+        picked.append(float(values[order[i]]))
     if n % 2:
         return float(picked[1])
     return float(np.mean(np.array(picked)))  # numpy's median: the mean of the middle two

@@ -135,7 +135,7 @@ def allan_variance(x: np.ndarray, *, overlap: int | None = None,
 
 
 Rows = Callable[[int, int], np.ndarray]  # rows(a, b): the (b - a, k) rows [a, b) of a signal
-RUN_ROWS = 1 << 18  # rows asked of a row getter at once (a run of whole runs, or one)
+RUN_ROWS = 1 << 16  # rows asked of a row getter at once (a run of whole runs, or one longer)
 
 
 def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.ndarray,
@@ -232,14 +232,10 @@ class _PooledSums:
         self.count = [0] * len(lags)
 
     def feed(self, cen: np.ndarray) -> None:
-        if self.w0 + len(self.win) == 1:  # S_1.. = cumsum of the first samples, as the whole's
-            np.cumsum(cen, axis=0, out=cen)
-            new = cen
-        else:  # carry on from the last S: the same sequential additions as one cumsum
-            new = np.concatenate([self.win[-1:], cen])
-            np.cumsum(new, axis=0, out=new)
-            new = new[1:]
-        self.win = np.concatenate([self.win, new])
+        if self.w0 + len(self.win) > 1:  # carry on from the last S: S_{p+1} = S_p + c_0, and
+            cen[0] += self.win[-1]  # on, the same sequential additions as one whole cumsum
+        np.cumsum(cen, axis=0, out=cen)
+        self.win = np.concatenate([self.win, cen])
         have = self.w0 + len(self.win)  # S_0 .. S_{have - 1} known
         for j, m in enumerate(self.lags):
             last = self.n - 2 * m + 1  # start points 0 .. last - 1
