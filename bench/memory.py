@@ -53,6 +53,15 @@ def main() -> None:
                  "leave_one_block_out", "quality_figures", "recording_guide"):
         setattr(pipeline, name, _probed(name, getattr(pipeline, name)))
     apply.Calibration.apply = _probed("apply", apply.Calibration.apply)
+    import imucal.result as result_module
+    import imucal.session as session_module
+
+    # The noise calib.json asks for, and the rates (the guide reads them; the rate properties
+    # are probed through the median they compute, where this tree has it).
+    result_module.still_noise = _probed("still_noise", result_module.still_noise)
+    if hasattr(session_module, "_median_rate"):
+        session_module._median_rate = _probed("Session rate (median step)",
+                                              session_module._median_rate)
 
     print("| step | MB held before | after | peak | peak above before |")
     print("|---|---|---|---|---|")

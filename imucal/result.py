@@ -3,6 +3,7 @@ the run (the CLI's summary, the viewer, the calibration file) needs."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -106,13 +107,11 @@ class Result:
         bias instability per axis, method of :mod:`imucal.stages.noise`); None when the blocks
         are too short. Computed once, on request: the calibration file and the viewer read it,
         a script that only wants the parameters never pays for it. Unless the calibrated
-        signals were made already, it reads only the still samples, one sensor at a time."""
+        signals were made already, it reads only the still blocks' calibrated rows, a run of
+        blocks at a time (:class:`StillSignals`)."""
         if "calibrated" in self.__dict__ or len(self.session.t_acc) < 2:
             return still_noise(self.calibrated, self.block_times)
-        still = StillSignals(self.calibration, self.session, self.block_times)
-        if len(still.t_acc) < 2:  # still_noise says None on the signal's length, not the blocks'
-            return still_noise(self.calibrated, self.block_times)
-        return still_noise(still, self.block_times)  # type: ignore[arg-type]
+        return still_noise(StillSignals(self.calibration, self.session), self.block_times)
 
     @property
     def raw_acc_norm(self) -> np.ndarray:
@@ -130,58 +129,26 @@ class Result:
         return np.linalg.norm(fit.nominal_rate(s.gyro, s.gyro_unit), axis=1)
 
 
-RUN_ROWS = 1 << 18  # rows of signal calibrated at once while packing the still samples
-
-
 class StillSignals:
-    """The calibrated signals' samples inside the still blocks ``[t_start, t_end)`` (the ranges
-    :func:`imucal.stages.noise.still_noise` reads), packed end to end, in place of
-    :class:`CalibratedSignals` for the noise: the blocks lie at the same places of the packed
-    time arrays, so the figures are the same to the bit. Each signal is made on access and not
-    kept: the noise holds one sensor's still samples at a time, not both whole signals."""
+    """The calibrated signals as row getters, in place of :class:`CalibratedSignals` for the
+    noise (:func:`imucal.stages.noise.still_noise`): the session's own time arrays, and
+    ``acc(a, b)`` / ``gyro(a, b)`` the calibrated rows ``[a, b)`` (``Calibration.rows``, bit
+    for bit the whole's). The noise asks only for the still blocks' rows, a run of blocks at a
+    time, so neither the signals nor their still samples are ever made whole."""
 
-    def __init__(self, calibration: Calibration, session: Session, block_times: np.ndarray):
+    def __init__(self, calibration: Calibration, session: Session):
         self.calibration, self.session = calibration, session
-        self.block_times = np.asarray(block_times, dtype=float).reshape(-1, 2)
         self.acc_unit = calibration.acc_unit
+        self.t_acc = session.t_acc
+        self.t_gyro = session.t_gyro
 
-    def _ranges(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.searchsorted(t, self.block_times[:, 0], side="left")
-        return lo, np.maximum(np.searchsorted(t, self.block_times[:, 1], side="left"), lo)
+    def acc(self, a: int, b: int) -> np.ndarray:
+        return self.calibration.rows(self.session, "acc", a, b)
 
-    def _packed(self, t: np.ndarray, rows, width: int | None) -> np.ndarray:
-        """Rows ``rows(lo, hi)`` of each block's range, end to end, a run of blocks of about
-        ``RUN_ROWS`` rows at a time (one array of the still samples, one run's rows)."""
-        lo, hi = self._ranges(t)
-        out = np.empty((int(np.sum(hi - lo)),) + (() if width is None else (width,)))
-        i, p = 0, 0
-        while i < len(lo):
-            j = i + 1 + int(np.searchsorted(hi[i + 1:], lo[i] + RUN_ROWS, side="right"))
-            r0, r1 = int(lo[i]), int(hi[j - 1])
-            x = rows(r0, r1)
-            for a, b in zip(lo[i:j], hi[i:j]):
-                out[p:p + b - a] = x[a - r0:b - r0]
-                p += b - a
-            i = j
-        return out
+    def _gyro(self, a: int, b: int) -> np.ndarray:
+        return self.calibration.rows(self.session, "gyro", a, b)
 
     @property
-    def t_acc(self) -> np.ndarray:
-        return self._packed(self.session.t_acc, lambda a, b: self.session.t_acc[a:b], None)
-
-    @property
-    def acc(self) -> np.ndarray:
-        return self._packed(self.session.t_acc,
-                            lambda a, b: self.calibration.rows(self.session, "acc", a, b), 3)
-
-    @property
-    def t_gyro(self) -> np.ndarray | None:
-        t = self.session.t_gyro
-        return None if t is None else self._packed(t, lambda a, b: t[a:b], None)
-
-    @property
-    def gyro(self) -> np.ndarray | None:
-        if not self.calibration.applies_gyro(self.session):
-            return None
-        return self._packed(self.session.t_gyro,
-                            lambda a, b: self.calibration.rows(self.session, "gyro", a, b), 3)
+    def gyro(self) -> Callable[[int, int], np.ndarray] | None:
+        """The calibrated gyroscope's row getter; None without a calibrated gyroscope."""
+        return self._gyro if self.calibration.applies_gyro(self.session) else None

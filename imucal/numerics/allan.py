@@ -29,6 +29,7 @@ textbook result is what the tests compare against (written out there, not import
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,57 +134,132 @@ def allan_variance(x: np.ndarray, *, overlap: int | None = None,
     return acc.curve()
 
 
-def pooled_allan_variance(x: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-                          min_clusters: float = 3.0, chunk: int = 1 << 16) -> AllanCurve:
-    """Overlapping Allan variance pooled over the runs ``[starts[i], ends[i])`` of ``x``
-    (n, k): every cluster lies inside one run, every start point counts once (fully
-    overlapping). Lags go up to the longest run / ``min_clusters``.
+Rows = Callable[[int, int], np.ndarray]  # rows(a, b): the (b - a, k) rows [a, b) of a signal
+RUN_ROWS = 1 << 16  # rows asked of a row getter at once (a run of whole runs, or one longer)
 
-    Vectorised: the runs are packed end to end into one running sum; per lag, a slice of
-    start points at a time (``chunk``: bounded temporaries) with a mask of those whose
-    clusters stay in their run.
+
+def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.ndarray,
+                          min_clusters: float = 3.0, chunk: int = 1 << 16, *,
+                          width: int = 3) -> AllanCurve:
+    """Overlapping Allan variance pooled over the runs ``[starts[i], ends[i])`` of ``x``
+    (n, k), or of the rows a getter ``x(a, b)`` gives (``width`` columns): every cluster lies
+    inside one run, every start point counts once (fully overlapping). Lags go up to the
+    longest run / ``min_clusters``.
+
+    The runs are packed end to end into one running sum ``S`` (each run centred on its mean: no
+    digits lost, and a constant within a run leaves its second differences unchanged); per lag,
+    a slice of ``chunk`` start points at a time, with a mask of those whose clusters stay in
+    their run. ``S`` is streamed: the runs are read a run of them (about ``RUN_ROWS`` rows) at a
+    time, and only the window of ``S`` a pending slice still needs is kept (``chunk`` + twice
+    the lag + a read: bounded by the longest run, not by the samples of all runs). The sums are
+    the packed whole's to the bit: the running sum carries on from its last value, each lag's
+    slices are the same and are added in the same order.
     """
-    x = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
+    if callable(x):
+        k = int(width)
+
+        def rows(a: int, b: int) -> np.ndarray:
+            # A fresh C-ordered array: the centring's mean reduces over the layout a packed
+            # copy of the runs had.
+            return np.ascontiguousarray(x(a, b), dtype=np.float64).reshape(b - a, k)
+    else:
+        arr = np.asarray(x, dtype=np.float64)
+        arr = arr.reshape(len(arr), -1)
+        k = arr.shape[1]
+
+        def rows(a: int, b: int) -> np.ndarray:
+            return arr[a:b]
     starts = np.asarray(starts, dtype=np.int64)
     ends = np.asarray(ends, dtype=np.int64)
     ok = ends > starts
     starts, ends = starts[ok], ends[ok]
     lengths = ends - starts
-    k = x.shape[1]
     empty = np.zeros(0, np.int64)
     if len(lengths) == 0:
         return AllanCurve(empty, np.zeros((0, k)), empty, empty, 0)
     n = int(lengths.sum())
     run_start = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    S = np.zeros((n + 1, k))  # S_0 .. S_n of the packed runs
-    for a, b, p in zip(starts, ends, run_start):
-        seg = S[p + 1:p + 1 + b - a]
-        np.subtract(x[a:b], x[a:b].mean(axis=0), out=seg)  # centred: no digits lost, and a
-        # constant within a run leaves its second differences unchanged
-    np.cumsum(S[1:], axis=0, out=S[1:])
-    # Samples from each start point to the end of its run.
-    remaining = np.repeat(run_start + lengths, lengths) - np.arange(n)
     longest = int(lengths.max())
-    lags, avar, terms = [], [], []
+    lags = []
     m = 1
     while m * min_clusters <= longest:
-        total, count = np.zeros(k), 0
-        for lo in range(0, n - 2 * m + 1, chunk):
-            hi = min(lo + chunk, n - 2 * m + 1)
-            valid = remaining[lo:hi] >= 2 * m
-            d = S[lo + 2 * m:hi + 2 * m] - 2.0 * S[lo + m:hi + m]
-            d += S[lo:hi]
-            total += np.einsum("ij,ij,i->j", d, d, valid.astype(np.float64))
-            count += int(np.count_nonzero(valid))
-        if count:
-            lags.append(m)
-            avar.append(total / (2.0 * m * m * count))
-            terms.append(count)
+        lags.append(m)
         m *= 2
-    lags_a = np.asarray(lags, dtype=np.int64)
+    acc = _PooledSums(lags, n, run_start, run_start + lengths, k, chunk)
+    for cen in _centred_runs(rows, starts, ends, k):
+        acc.feed(cen)
+    keep = [j for j, c in enumerate(acc.count) if c]
+    lags_a = np.asarray([lags[j] for j in keep], dtype=np.int64)
+    avar = [acc.total[j] / (2.0 * lags[j] * lags[j] * acc.count[j]) for j in keep]
     return AllanCurve(lags=lags_a, avar=np.asarray(avar).reshape(-1, k),
-                      terms=np.asarray(terms, dtype=np.int64),
+                      terms=np.asarray([acc.count[j] for j in keep], dtype=np.int64),
                       stride=np.ones_like(lags_a), n=n)
+
+
+def _centred_runs(rows: Rows, starts: np.ndarray, ends: np.ndarray, k: int):
+    """Each read's runs, centred and end to end (one (rows, k) array per read of about
+    ``RUN_ROWS`` rows, or of one longer run)."""
+    i = 0
+    while i < len(starts):
+        j = i + 1
+        r0, r1 = int(starts[i]), int(ends[i])
+        while j < len(starts) and max(r1, int(ends[j])) - min(r0, int(starts[j])) <= RUN_ROWS:
+            r0, r1 = min(r0, int(starts[j])), max(r1, int(ends[j]))
+            j += 1
+        xs = rows(r0, r1)
+        out = np.empty((int(np.sum(ends[i:j] - starts[i:j])), k))
+        p = 0
+        for a, b in zip(starts[i:j], ends[i:j]):
+            seg = xs[a - r0:b - r0]
+            np.subtract(seg, seg.mean(axis=0), out=out[p:p + b - a])
+            p += b - a
+        yield out
+        i = j
+
+
+class _PooledSums:
+    """The per-lag sums of squared second differences of the packed running sum ``S``, fed
+    the centred samples in order; holds the window of ``S`` the pending slices need."""
+
+    def __init__(self, lags: list[int], n: int, run_start: np.ndarray, run_end: np.ndarray,
+                 k: int, chunk: int) -> None:
+        self.lags, self.n, self.chunk = lags, n, chunk
+        self.run_start, self.run_end = run_start, run_end
+        self.win = np.zeros((1, k))  # S[w0 : w0 + len(win)]; S_0 = 0
+        self.w0 = 0
+        self.next = [0] * len(lags)  # per lag, the first start point not yet summed
+        self.total = [np.zeros(k) for _ in lags]
+        self.count = [0] * len(lags)
+
+    def feed(self, cen: np.ndarray) -> None:
+        if self.w0 + len(self.win) > 1:  # carry on from the last S: S_{p+1} = S_p + c_0, and
+            cen[0] += self.win[-1]  # on, the same sequential additions as one whole cumsum
+        np.cumsum(cen, axis=0, out=cen)
+        self.win = np.concatenate([self.win, cen])
+        have = self.w0 + len(self.win)  # S_0 .. S_{have - 1} known
+        for j, m in enumerate(self.lags):
+            last = self.n - 2 * m + 1  # start points 0 .. last - 1
+            while self.next[j] < last:
+                lo = self.next[j]
+                hi = min(lo + self.chunk, last)
+                if hi + 2 * m > have:
+                    break
+                self._slice(j, m, lo, hi)
+                self.next[j] = hi
+        pending = [lo for lo, m in zip(self.next, self.lags) if lo < self.n - 2 * m + 1]
+        keep = min(pending) if pending else have - 1
+        self.win = self.win[keep - self.w0:]
+        self.w0 = keep
+
+    def _slice(self, j: int, m: int, lo: int, hi: int) -> None:
+        S, o = self.win, self.w0
+        i = np.arange(lo, hi)
+        run = np.searchsorted(self.run_start, i, side="right") - 1
+        valid = self.run_end[run] - i >= 2 * m  # samples to the end of its run
+        d = S[lo + 2 * m - o:hi + 2 * m - o] - 2.0 * S[lo + m - o:hi + m - o]
+        d += S[lo - o:hi - o]
+        self.total[j] += np.einsum("ij,ij,i->j", d, d, valid.astype(np.float64))
+        self.count[j] += int(np.count_nonzero(valid))
 
 
 @dataclass(frozen=True)

@@ -18,11 +18,13 @@ rad/s once calibrated; counts if raw counts are measured).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
-from imucal.numerics.allan import AllanAccumulator, AllanCurve, NoiseFit, fit_noise
+from imucal.numerics.allan import AllanAccumulator, AllanCurve, NoiseFit, Rows, fit_noise
 from imucal.numerics.allan import pooled_allan_variance as _pooled
+from imucal.session import median_step
 from imucal.stages.apply import CalibratedSignals
 
 AXES = ("x", "y", "z")
@@ -87,7 +89,19 @@ def sensor_noise(sensor: str, unit: str, rate_hz: float, curve: AllanCurve) -> S
                        fits=fits)  # type: ignore[arg-type]
 
 
-def still_noise(signals: CalibratedSignals, block_times: np.ndarray) -> NoiseReport | None:
+class RowSource(Protocol):
+    """The calibrated signals as the noise reads them: each signal an (N, 3) array or a row
+    getter ``rows(a, b)`` (then only the still blocks' rows are ever made, a run at a time)."""
+
+    t_acc: np.ndarray
+    acc: np.ndarray | Rows
+    t_gyro: np.ndarray | None
+    gyro: np.ndarray | Rows | None
+    acc_unit: str
+
+
+def still_noise(signals: CalibratedSignals | RowSource,
+                block_times: np.ndarray) -> NoiseReport | None:
     """Noise figures of the calibrated signals inside the still blocks ``[t_start, t_end)``."""
     block_times = np.asarray(block_times, dtype=float).reshape(-1, 2)
     if len(block_times) == 0 or len(signals.t_acc) < 2:
@@ -104,7 +118,7 @@ def still_noise(signals: CalibratedSignals, block_times: np.ndarray) -> NoiseRep
     return NoiseReport(accelerometer=acc, gyroscope=gyro, source=source)
 
 
-def _blocks_noise(sensor: str, unit: str, t: np.ndarray, x: np.ndarray,
+def _blocks_noise(sensor: str, unit: str, t: np.ndarray, x: np.ndarray | Rows,
                   block_times: np.ndarray) -> SensorNoise | None:
     lo = np.searchsorted(t, block_times[:, 0], side="left")
     hi = np.searchsorted(t, block_times[:, 1], side="left")
@@ -112,8 +126,9 @@ def _blocks_noise(sensor: str, unit: str, t: np.ndarray, x: np.ndarray,
     if len(curve.lags) == 0:
         return None
     # The rate inside the blocks: the median step there (a recording's gaps lie elsewhere).
-    steps = np.concatenate([np.diff(t[a:b]) for a, b in zip(lo, hi) if b - a > 1])
-    return sensor_noise(sensor, unit, float(1.0 / np.median(steps)), curve)
+    # np.median of the blocks' steps to the bit, without them all at once.
+    step = median_step(t, [(a, b) for a, b in zip(lo, hi) if b - a > 1])
+    return sensor_noise(sensor, unit, float(1.0 / step), curve)
 
 
 class StreamingNoise:
