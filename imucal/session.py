@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from imucal.numerics.order_stats import Chunks, ranked_values
 
 ACC_UNITS = ("g", "m/s^2", "counts")
 GYRO_UNITS = ("rad/s", "deg/s", "counts")
@@ -75,78 +77,35 @@ def median_step(t: np.ndarray, ranges: Iterable[tuple[int, int]]) -> float:
 
 
 # --- an exact median of values given a chunk at a time (issue 12) --------------------------------
-#
-# np.median of the values to the bit, in memory bounded by a chunk and a small bracket: a pass
-# takes a strided sample of the values, whose quantiles (widened by four standard deviations of
-# a sample quantile's rank) bracket the middle ranks; a second pass counts the values below the
-# bracket and at its two ends, and keeps only those strictly inside it; the middle ranks are
-# picked from those (np.partition) and averaged as numpy does (the mean of the two middle values
-# for an even count). Values the sample holds are counted, not kept, so a clock's few distinct
-# steps cost nothing. Where the bracket misses (a sample periodic with the values could make
-# it) or holds too many values, the copy is made. (The unit guesses of imucal/io/units.py do the
-# same for |x| and row norms, on rows of an array.)
+# np.median of the values to the bit without holding them all: the middle ranks come from
+# imucal.numerics.order_stats (a sampled bracket and a counting pass); below MEDIAN_SMALL
+# values, or where the bracket misses, np.median makes its copy.
 
 MEDIAN_SMALL = 1 << 20  # values: below this, the copy is cheap and np.median makes it
 MEDIAN_SAMPLE = 1 << 17  # values in the bracket's sample, about
 
 
-def chunked_median(chunks: Callable[[], Iterable[np.ndarray]], n: int,
-                   small: int = MEDIAN_SMALL) -> float:
+def chunked_median(chunks: Chunks, n: int, small: int = MEDIAN_SMALL) -> float:
     """``np.median`` of the ``n`` values that ``chunks()`` yields (1-D arrays, in order; called
     once per pass, so it must start afresh each time)."""
     if n < small:
         return float(np.median(_whole(chunks)))
-    step = max(1, n // MEDIAN_SAMPLE)  # copies of the strided views: no chunk is kept
-    sample = np.sort(np.concatenate([c[::step].copy() for c in chunks()]))
-    if np.isnan(sample[-1]):
-        return float("nan")
-    ranks = [(n - 1) // 2, n // 2]
-    m = len(sample)
-    margin = max(0.004, 4.0 / np.sqrt(m))
-    lo = int(np.floor((ranks[0] / n - margin) * m))
-    hi = int(np.ceil((ranks[1] / n + margin) * m))
-    lo_v = sample[lo] if lo > 0 else -np.inf
-    hi_v = sample[hi] if hi < m else np.inf
-    # The sample's own values inside the bracket are counted, not kept (a clock's few distinct
-    # steps cost nothing); only the other values inside it are kept.
-    known = np.unique(sample[(sample >= lo_v) & (sample <= hi_v)])
-    counts = np.zeros(len(known), dtype=np.int64)
-    below = kept = 0
-    inside: list[np.ndarray] = []
-    for c in chunks():
-        if np.isnan(c).any():
-            return float("nan")
-        below += int(np.count_nonzero(c < lo_v))
-        got = c[(c >= lo_v) & (c <= hi_v)]
-        pos = np.minimum(np.searchsorted(known, got), max(len(known) - 1, 0))
-        hit = known[pos] == got if len(known) else np.zeros(len(got), dtype=bool)
-        counts += np.bincount(pos[hit], minlength=len(known))
-        inside.append(got[~hit])
-        kept += len(inside[-1])
-        if kept > n // 8:  # the bracket holds too much: no saving left
-            return float(np.median(_whole(chunks)))
-    values = np.concatenate([known, *inside])
-    weights = np.concatenate([counts, np.ones(kept, dtype=np.int64)])
-    order = np.argsort(values, kind="stable")
-    ends = np.cumsum(weights[order])  # values[order[i]] holds ranks [ends[i - 1], ends[i])
-    picked = []
-    for r in ranks:
-        i = int(np.searchsorted(ends, r - below, side="right"))
-        if r < below or i >= len(order):
-            return float(np.median(_whole(chunks)))  # the bracket missed
-        picked.append(float(values[order[i]]))
+    got = ranked_values(chunks, n, [[(n - 1) // 2, n // 2]], MEDIAN_SAMPLE)
+    if got is None:
+        return float(np.median(_whole(chunks)))
+    m0, m1 = got[0]
     if n % 2:
-        return float(picked[1])
-    return float(np.mean(np.array(picked)))  # numpy's median: the mean of the middle two
+        return float(m1)
+    return float(np.mean(np.array([m0, m1])))  # numpy's median: the mean of the middle two
 
 
-def _whole(chunks: Callable[[], Iterable[np.ndarray]]) -> np.ndarray:
+def _whole(chunks: Chunks) -> np.ndarray:
     parts = list(chunks())
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def diff_chunks(t: np.ndarray, ranges: Iterable[tuple[int, int]],
-                rows: int = 1 << 16) -> Callable[[], Iterable[np.ndarray]]:
+                rows: int = 1 << 16) -> Chunks:
     """The steps ``np.diff(t[a:b])`` of each range, end to end, ``rows`` steps at a time (for
     :func:`chunked_median`)."""
     ranges = [(int(a), int(b)) for a, b in ranges]

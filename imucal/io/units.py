@@ -12,6 +12,7 @@ import re
 import numpy as np
 
 from imucal.errors import ImucalError
+from imucal.numerics.order_stats import ranked_values
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9,
               "100us": 1e-4}  # the last only as a name implies it (Xsens SampleTimeFine)
@@ -205,32 +206,12 @@ def _order_statistics(x: np.ndarray, values, groups: list[list[int]],
                       ) -> list[list[float]] | None:
     """For each group of ranks (close together), the values of those ranks in the sorted
     ``values(x)`` (a 1-D array row by row: ``values(x[a:b])`` is that of rows a to b; NaN if
-    one is NaN, as numpy's are); None if a bracket missed."""
-    step = max(16, len(x) // (1 << 18))  # a sample of at most ~2^18 rows, 1/16 of a short x
+    one is NaN, as numpy's are), ``ROWS`` rows at a time; None if a bracket missed."""
+
+    def chunks():
+        for r0 in range(0, len(x), ROWS):
+            yield values(x[r0:r0 + ROWS])
+
     n = len(values(x[:1])) * len(x)
-    sample = np.sort(values(x[::step]))
-    m = len(sample)
-    margin = max(0.004, 4.0 / np.sqrt(m))  # 4 sd of a sample quantile's rank, or more
-    brackets = []
-    for ranks in groups:
-        lo = int(np.floor((min(ranks) / n - margin) * m))
-        hi = int(np.ceil((max(ranks) / n + margin) * m))
-        brackets.append((sample[lo] if lo > 0 else -np.inf, sample[hi] if hi < m else np.inf))
-    below = [0] * len(groups)
-    inside: list[list[np.ndarray]] = [[] for _ in groups]
-    for r0 in range(0, len(x), ROWS):
-        a = values(x[r0:r0 + ROWS])
-        if np.isnan(a).any():
-            return [[float("nan")] * len(r) for r in groups]
-        for i, (lo_v, hi_v) in enumerate(brackets):
-            below[i] += int(np.count_nonzero(a < lo_v))
-            inside[i].append(a[(a >= lo_v) & (a <= hi_v)])
-    out = []
-    for ranks, c, got in zip(groups, below, inside):
-        vals = np.concatenate(got)
-        if not (c <= min(ranks) and max(ranks) < c + len(vals)):
-            return None
-        k = [r - c for r in ranks]
-        vals.partition(k)
-        out.append([float(vals[j]) for j in k])
-    return out
+    # A sample of at most ~2^18 rows' values, 1/16 of a short x's.
+    return ranked_values(chunks, n, groups, sample=n // max(16, len(x) // (1 << 18)))
