@@ -10,10 +10,13 @@ really tested there.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes.util
 import glob
 import os
 import shutil
+import signal
+import subprocess
 import sys
 from pathlib import Path
 
@@ -80,3 +83,21 @@ def need_chromium() -> str:
     path = chromium()
     need(None if path else "no Chromium for the web viewer test: install chromium")
     return str(path)
+
+
+def stop_group(proc: subprocess.Popen, timeout: float = 10.0) -> None:
+    """End a process started with ``start_new_session=True`` and everything in its group
+    (the ``rerun`` launcher runs the real binary as a child): SIGTERM, then SIGKILL after
+    ``timeout`` seconds; where the launcher already exited, its group is killed outright."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    else:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGKILL)

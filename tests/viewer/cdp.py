@@ -8,10 +8,11 @@ import contextlib
 import json
 import os
 import select
-import signal
 import subprocess
 import time
 from pathlib import Path
+
+from viewer_env import stop_group
 
 
 class DevTools:
@@ -115,12 +116,4 @@ class DevTools:
             os.close(self._w)
         with contextlib.suppress(OSError):
             os.close(self._r)
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.proc.pid, signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
+        stop_group(self.proc)

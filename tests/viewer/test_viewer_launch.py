@@ -17,7 +17,6 @@ import os
 import re
 import select
 import shutil
-import signal
 import socket
 import stat
 import subprocess
@@ -28,7 +27,7 @@ from importlib.metadata import version
 from pathlib import Path
 
 import pytest
-from viewer_env import need, vulkan_missing
+from viewer_env import need, stop_group, vulkan_missing
 
 import imucal
 from viewer.app import DEFAULT_WEB_PORT, free_port, native_command, port_taken, show
@@ -84,14 +83,7 @@ def _start(cmd: list[str], env: dict, **kw) -> subprocess.Popen:
 
 
 def _stop(proc: subprocess.Popen) -> None:
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+    stop_group(proc, timeout=20)
 
 
 def _readline(proc: subprocess.Popen, timeout: float) -> str:

@@ -20,7 +20,6 @@ import io
 import json
 import os
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -31,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cdp import DevTools  # tests/cdp.py
-from viewer_env import RERUN, need
+from viewer_env import RERUN, need, stop_group
 
 import imucal
 from imucal.synth import make_session
@@ -116,18 +115,7 @@ def _start(cmd: list[str], env: dict | None = None, **kw) -> subprocess.Popen:
 
 
 def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-    else:  # the launcher exited; its child (the real binary) may still hold the group
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, signal.SIGKILL)
+    stop_group(proc)
 
 
 def _private_env(tmp_path: Path) -> dict:
