@@ -36,6 +36,9 @@ class Session:
     # The initial still period the file states (s), a hint for the static detector (method.md
     # §1); None where the file says nothing.
     init_still_s: float | None = None
+    # Where the signals are held when not in the process's memory (a long recording's arrays
+    # mapped from a temporary file, imucal.io.spill), for the report; None: in memory.
+    storage: str | None = None
 
     def __post_init__(self) -> None:
         if self.acc_unit not in ACC_UNITS:
