@@ -27,6 +27,8 @@ def own_rows(acc: Part, gyro: Part, opts: LoadOptions) -> None:
             or not (acc.time is gyro.time or np.array_equal(acc.time, gyro.time,
                                                             equal_nan=True))):
         return  # not rows of one table
+    if _chunks_all(acc.values, np.isfinite, 0) and _chunks_all(gyro.values, np.isfinite, 0):
+        return  # every row holds both (the common case: no row-wise masks needed)
     has_a = np.isfinite(acc.values).any(axis=1)
     has_g = np.isfinite(gyro.values).any(axis=1)
     n = len(has_a)
