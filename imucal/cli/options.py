@@ -202,7 +202,7 @@ SpillDirOpt = Annotated[Path | None, typer.Option(
     "--spill-dir", metavar="DIR", rich_help_panel=_IN, show_default=False, exists=True,
     file_okay=False, dir_okay=True, writable=True,
     help="Folder for the temporary file a long recording's signals are mapped from (64 MB and "
-         "up), so that the process holds about 1 GiB of them at most; on a disk, not a tmpfs "
+         "up), so that the process holds about 0.5 GiB of them at most; on a disk, not a tmpfs "
          "[default: the system's temporary folder, TMPDIR].")]
 VerboseOpt = Annotated[bool, typer.Option(
     "--verbose", "-v", help="Show progress on stderr (shown anyway when stderr is a terminal).")]
