@@ -113,9 +113,11 @@ def _overview(result: Result) -> tuple[Line, ...]:
     lc = result.whole.lcurve
     how = (f"L-curve corner, point {lc.corner + 1} of {len(lc.lambdas)}" if lc is not None
            else "fixed")
+    memory = (Line("memory", s.storage),) if s.storage else ()
     return (
         Line("session", f"{s.source}: {s.duration:.1f} s, accelerometer {len(s.acc)} samples at "
                         f"{_rate(s.acc_rate)} ({s.acc_unit}), {gyro}"),
+        *memory,
         Line("static blocks", f"{len(det.blocks)} (window {det.window}, min length "
                               f"{det.min_len} samples)"),
         Line("segments", f"{len(result.segments)} ({result.grouping.mode})"),

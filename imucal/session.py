@@ -36,6 +36,9 @@ class Session:
     # The initial still period the file states (s), a hint for the static detector (method.md
     # §1); None where the file says nothing.
     init_still_s: float | None = None
+    # Where the signals are held when not in the process's memory (a long recording's arrays
+    # mapped from a temporary file, imucal.io.spill), for the report; None: in memory.
+    storage: str | None = None
 
     def __post_init__(self) -> None:
         if self.acc_unit not in ACC_UNITS:
@@ -118,6 +121,13 @@ def diff_chunks(t: np.ndarray, ranges: Iterable[tuple[int, int]],
     return gen
 
 
+def _chunks_all(x: np.ndarray, test, overlap: int = 0, rows: int = 1 << 18) -> bool:
+    """``np.all(test(x))`` a chunk of rows at a time (``overlap`` rows shared with the next,
+    for a test on steps): no temporary the length of a long recording."""
+    return all(bool(np.all(test(x[lo:lo + rows + overlap])))
+               for lo in range(0, max(len(x) - overlap, 1), rows))
+
+
 def validate(session: Session) -> None:
     """Refuse a session the method cannot use, in one line naming the field.
 
@@ -135,11 +145,12 @@ def validate(session: Session) -> None:
         if t is None or np.asarray(t).shape != (len(x),):
             raise ImucalError(f"expected one timestamp per sample ({len(x)})",
                               source=session.source, field=f"{name} time")
-        if not np.issubdtype(x.dtype, np.number) or not np.all(np.isfinite(x)):
+        if not np.issubdtype(x.dtype, np.number) or not _chunks_all(x, np.isfinite):
             raise ImucalError("samples must be finite numbers (NaN or Inf found)",
                               source=session.source, field=name)
         t = np.asarray(t, dtype=float)
-        if len(t) < 2 or not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
+        if (len(t) < 2 or not _chunks_all(t, np.isfinite)
+                or not _chunks_all(t, lambda c: np.diff(c) > 0, overlap=1)):
             raise ImucalError("timestamps must be finite and strictly increasing",
                               source=session.source, field=f"{name} time")
 

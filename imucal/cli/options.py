@@ -198,6 +198,12 @@ TimeUnitOpt = Annotated[str, typer.Option(
 AccOnlyOpt = Annotated[bool, typer.Option(
     "--acc-only", rich_help_panel=_IN,
     help="The file holds an accelerometer and no gyroscope: calibrate the accelerometer alone.")]
+SpillDirOpt = Annotated[Path | None, typer.Option(
+    "--spill-dir", metavar="DIR", rich_help_panel=_IN, show_default=False, exists=True,
+    file_okay=False, dir_okay=True, writable=True,
+    help="Folder for the temporary file a long recording's signals are mapped from (64 MB and "
+         "up), so that the process holds about 0.5 GiB of them at most; on a disk, not a tmpfs "
+         "[default: the system's temporary folder, TMPDIR].")]
 VerboseOpt = Annotated[bool, typer.Option(
     "--verbose", "-v", help="Show progress on stderr (shown anyway when stderr is a terminal).")]
 
@@ -290,7 +296,8 @@ GyroSensitivityOpt = Annotated[float | None, typer.Option(
 INPUT_OPTIONS = (
     ("gyro", GyroOpt, None), ("rate", RateOpt, None), ("acc_unit", AccUnitOpt, "auto"),
     ("gyro_unit", GyroUnitOpt, "auto"), ("columns", ColumnsOpt, None),
-    ("time_unit", TimeUnitOpt, "s"), ("acc_only", AccOnlyOpt, False))
+    ("time_unit", TimeUnitOpt, "s"), ("acc_only", AccOnlyOpt, False),
+    ("spill_dir", SpillDirOpt, None))
 SETTING_OPTIONS = (
     ("window", WindowOpt, DEFAULTS["window"]), ("min_len", MinLenOpt, DEFAULTS["min_len"]),
     ("k", KOpt, DEFAULTS["k"]), ("init", InitOpt, None), ("init_start", InitStartOpt, None),
@@ -367,10 +374,13 @@ def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
             "optimise_gyro_bias": optimise_gyro_bias, "gyro_sensitivity": gyro_sensitivity}
 
 
-def load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit, acc_only=False
-                 ) -> dict[str, Any]:
+def load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit, acc_only=False,
+                spill_dir=None) -> dict[str, Any]:
+    from imucal.io.spill import SpillPolicy  # numpy: not for --help
+
     return {"gyro_path": gyro, "rate": rate, "acc_unit": acc_unit, "gyro_unit": gyro_unit,
-            "columns": parse_columns(columns), "time_unit": time_unit, "acc_only": acc_only}
+            "columns": parse_columns(columns), "time_unit": time_unit, "acc_only": acc_only,
+            "spill": None if spill_dir is None else SpillPolicy(directory=spill_dir)}
 
 
 def usage_error(message: str, hint: str) -> typer.BadParameter:

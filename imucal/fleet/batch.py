@@ -207,8 +207,10 @@ def _worker_address() -> str | None:
 
 
 def settings_hash(load_kw: dict[str, Any], settings: dict[str, Any]) -> str:
-    """A short hash of every option that changes a session's result."""
-    text = json.dumps({"input": load_kw, "settings": settings}, sort_keys=True, default=str)
+    """A short hash of every option that changes a session's result (where the signals are
+    held does not)."""
+    given = {k: v for k, v in load_kw.items() if k != "spill"}
+    text = json.dumps({"input": given, "settings": settings}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

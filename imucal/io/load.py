@@ -27,6 +27,7 @@ from imucal.io.file_facts import FileFacts, read_facts
 from imucal.io.mat_layout import from_variables
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.readers import display_name, read_file
+from imucal.io.spill import Spill, SpillPolicy, contiguous, elementwise
 from imucal.io.table_layout import from_names, from_positions
 from imucal.io.time_base import MAX_RATE_HZ, own_rows, settle_time
 from imucal.io.units import (
@@ -59,6 +60,7 @@ def load_session(
     columns: Mapping[str, str | int] | None = None,
     time_unit: str = "s",
     acc_only: bool = False,
+    spill: SpillPolicy | None = None,
 ) -> Session:
     """Load an accelerometer + gyroscope recording from ``path`` (and ``gyro_path``).
 
@@ -69,7 +71,9 @@ def load_session(
     positions for a file without a header. A file with an accelerometer and no gyroscope is
     refused unless ``acc_only`` says an accelerometer-only session is meant (three columns are
     as often one half of a two-file session); ``acc_only`` also drops a gyroscope that is there.
-    Raises :class:`ImucalError` for any bad input.
+    ``spill`` says where and from which size the signals of a .mat file are mapped from a
+    temporary file rather than held in memory (:mod:`imucal.io.spill`; default: 64 MB and up,
+    in the system's temporary folder). Raises :class:`ImucalError` for any bad input.
     """
     paths = [Path(path)] + ([Path(gyro_path)] if gyro_path is not None else [])
     source = " + ".join(display_name(p) for p in paths)
@@ -83,42 +87,45 @@ def load_session(
     for p in paths:
         _check_file(p)
 
-    parts = _read_parts(paths, acc_only, opts, source)
+    store = Spill(spill if spill is not None else SpillPolicy(), source)
+    parts = _read_parts(paths, acc_only, opts, source, store)
 
-    acc, t_acc = settle_time(parts["acc"], opts)
+    acc, t_acc = settle_time(parts["acc"], opts, store.empty)
     gyro = t_gyro = None
     if "gyro" in parts:
-        gyro, t_gyro = settle_time(parts["gyro"], opts)
+        gyro, t_gyro = settle_time(parts["gyro"], opts, store.empty)
     if gyro_path is not None and t_gyro is not None and opts.rate is not None:
         # Two files timed by one rate: their lengths must agree (stages/sanity.py).
         note = one_rate_pairing(t_acc, t_gyro, opts.rate, *(display_name(p) for p in paths))
         opts.notes.extend([note] if note else [])
 
-    acc, acc_unit, gyro, final_gyro_unit = _units(acc, gyro, parts, acc_unit, gyro_unit, opts)
+    acc, acc_unit, gyro, final_gyro_unit = _units(acc, gyro, parts, acc_unit, gyro_unit, opts,
+                                                  store)
 
     return Session(
-        acc=np.ascontiguousarray(acc, dtype=np.float64),
-        t_acc=np.ascontiguousarray(t_acc, dtype=np.float64),
-        gyro=None if gyro is None else np.ascontiguousarray(gyro, dtype=np.float64),
-        t_gyro=None if t_gyro is None else np.ascontiguousarray(t_gyro, dtype=np.float64),
+        acc=contiguous(acc, store),
+        t_acc=contiguous(t_acc, store),
+        gyro=None if gyro is None else contiguous(gyro, store),
+        t_gyro=None if t_gyro is None else contiguous(t_gyro, store),
         acc_unit=acc_unit,
         gyro_unit=final_gyro_unit,
         source=source,
         sha256=_sha256(paths),
         notes=tuple(dict.fromkeys(opts.notes)),  # a shared time column speaks once
         init_still_s=opts.init_still_s,
+        storage=store.note(),
     )
 
 
 
 def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
-                source: str) -> dict:
+                source: str, store: Spill) -> dict:
     """The accelerometer's and gyroscope's columns, from one file or from two."""
     if len(paths) == 2:
-        parts = _extract(read_file(paths[0]), ("acc",), opts)
-        parts.update(_extract(read_file(paths[1]), ("gyro",), opts))
+        parts = _extract(read_file(paths[0], store), ("acc",), opts)
+        parts.update(_extract(read_file(paths[1], store), ("gyro",), opts))
         return parts
-    parts = _extract(read_file(paths[0]), ("acc", "gyro"), opts)
+    parts = _extract(read_file(paths[0], store), ("acc", "gyro"), opts)
     if "gyro" not in parts and not acc_only:
         raise ImucalError("found an accelerometer and no gyroscope; give the gyroscope's "
                           "file with --gyro FILE, or --acc-only to calibrate the "
@@ -133,13 +140,13 @@ def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
 
 
 def _units(acc: np.ndarray, gyro: np.ndarray | None, parts: dict, acc_unit: str,
-           gyro_unit: str, opts: LoadOptions
+           gyro_unit: str, opts: LoadOptions, store: Spill
            ) -> tuple[np.ndarray, str, np.ndarray | None, str | None]:
     """Each signal in its resolved unit (named in the file, given, or guessed from the
     values), the gyroscope in rad/s unless it is raw counts; each choice in ``opts.notes``."""
-    acc = _scale_named_unit(acc, parts["acc"], opts.notes)
+    acc = _scale_named_unit(acc, parts["acc"], opts.notes, store)
     if gyro is not None:
-        gyro = _scale_named_unit(gyro, parts["gyro"], opts.notes)
+        gyro = _scale_named_unit(gyro, parts["gyro"], opts.notes, store)
     acc_unit = resolve_acc_unit(acc, acc_unit, parts["acc"].unit_hint, parts["acc"].source,
                                 opts.notes)
     if gyro is None:
@@ -147,7 +154,7 @@ def _units(acc: np.ndarray, gyro: np.ndarray | None, parts: dict, acc_unit: str,
     gyro_unit = resolve_gyro_unit(gyro, gyro_unit, parts["gyro"].unit_hint, acc_unit,
                                   opts.notes)
     if gyro_unit == "deg/s":
-        gyro = np.deg2rad(gyro)
+        gyro = elementwise(np.deg2rad, gyro, store.empty)
         opts.notes.append("gyroscope converted from deg/s to rad/s")
         gyro_unit = "rad/s"
     return acc, acc_unit, gyro, gyro_unit
@@ -233,7 +240,8 @@ def _share_equal_time(acc: Part, gyro: Part, rows: int = 1 << 16) -> None:
     gyro.time = a
 
 
-def _scale_named_unit(values: np.ndarray, part: Part, notes: list[str]) -> np.ndarray:
+def _scale_named_unit(values: np.ndarray, part: Part, notes: list[str], store: Spill
+                      ) -> np.ndarray:
     """Values in a unit only a column name uses (mg, mdeg/s) in the unit it scales."""
     if part.unit_hint not in SCALED_UNITS:
         return values
@@ -241,7 +249,7 @@ def _scale_named_unit(values: np.ndarray, part: Part, notes: list[str]) -> np.nd
     notes.append(f"{LABELS[part.sensor]} converted from {part.unit_hint} to {unit}, as the "
                  "column names say")
     part.unit_hint = unit
-    return values * scale
+    return elementwise(lambda x, out: np.multiply(x, scale, out=out), values, store.empty)
 
 
 def _extract(content: Table | Variables, sensors: tuple[str, ...],

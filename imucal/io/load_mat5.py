@@ -28,6 +28,7 @@ from typing import BinaryIO
 import numpy as np
 
 from imucal.io.mat5_check import CorruptMat, check_mat5
+from imucal.io.spill import IN_MEMORY, Spill
 
 _MATRIX, _COMPRESSED = 14, 15
 # miINT8 ... miUINT64 data types and mxINT8 ... mxUINT64 / mxSINGLE / mxDOUBLE array classes
@@ -45,8 +46,9 @@ class Unsupported(Exception):
     """Not a file this reader follows; read it the general way."""
 
 
-def read_mat5_arrays(path: Path) -> dict[str, np.ndarray]:
-    """Every real numeric 2-D variable of a MATLAB v5 file, as float64, by name.
+def read_mat5_arrays(path: Path, spill: Spill | None = None) -> dict[str, np.ndarray]:
+    """Every real numeric 2-D variable of a MATLAB v5 file, as float64, by name; ``spill``
+    allocates them (large ones mapped from a temporary file, :mod:`imucal.io.spill`).
 
     A matrix with at least as many rows as columns is C-ordered, one with more columns than
     rows (3 x N) Fortran-ordered: either way its samples are rows of a C-ordered array once
@@ -54,6 +56,7 @@ def read_mat5_arrays(path: Path) -> dict[str, np.ndarray]:
     reader must decide.
     """
     found: dict[str, np.ndarray] = {}
+    spill = spill if spill is not None else Spill(IN_MEMORY)
     with path.open("rb") as fh:
         head = fh.read(128)
         end = fh.seek(0, io.SEEK_END)
@@ -72,13 +75,13 @@ def read_mat5_arrays(path: Path) -> dict[str, np.ndarray]:
                 inner_kind, inner_n = struct.unpack(fmt + "II", stream.read(8))
                 if inner_kind != _MATRIX:
                     raise Unsupported("compressed element")
-                used = _variable(stream, inner_n, fmt, found, head)
+                used = _variable(stream, inner_n, fmt, found, head, spill)
                 _skip(stream, inner_n - used)
                 if len(stream.read(_READ)) >= 8:  # several elements in one stream: rare
                     raise Unsupported("compressed stream of several elements")
                 pos = body + nbytes
             else:
-                _variable(_Plain(fh, body, nbytes), nbytes, fmt, found, head)
+                _variable(_Plain(fh, body, nbytes), nbytes, fmt, found, head, spill)
                 pos = body + nbytes + (-nbytes) % 8
     return found
 
@@ -156,7 +159,7 @@ def _skip(stream: _Stream, n: int) -> None:
 
 
 def _variable(stream: _Stream, nbytes: int, fmt: str, found: dict[str, np.ndarray],
-              header: bytes) -> int:
+              header: bytes, spill: Spill) -> int:
     """One miMATRIX element: kept when a real numeric 2-D matrix, else checked and skipped.
     Returns how many bytes of its body were read."""
     if nbytes == 0:
@@ -180,7 +183,7 @@ def _variable(stream: _Stream, nbytes: int, fmt: str, found: dict[str, np.ndarra
         return len(head)
     pending = head[data_at:data_at + data_n]
     data = _Prefixed(pending, stream) if pending else stream
-    found[name] = _read_data(data, rows, cols, np.dtype(dtype).newbyteorder(fmt))
+    found[name] = _read_data(data, rows, cols, np.dtype(dtype).newbyteorder(fmt), spill)
     return max(len(head), data_at + data_n)
 
 
@@ -238,18 +241,19 @@ def _fields(head: bytes, fmt: str) -> tuple[str, tuple[int, int], str, int, int]
     return name.decode("latin-1"), (rows, cols), stored, at + 8, n
 
 
-def _read_data(stream: _Stream, rows: int, cols: int, dtype: np.dtype) -> np.ndarray:
+def _read_data(stream: _Stream, rows: int, cols: int, dtype: np.dtype, spill: Spill
+               ) -> np.ndarray:
     """Column-major data into a float64 (rows, cols) array: Fortran order when there are more
     columns than rows (read straight in), else C order (written a column at a time)."""
     if cols > rows or cols == 1 or rows == 1:
-        out = np.empty((rows, cols), dtype=np.float64, order="F")
+        out = spill.empty((rows, cols), order="F")
         flat = out.reshape(-1, order="F")  # a view: same memory
         if dtype == np.dtype("<f8") or dtype == np.dtype("=f8"):
             stream.read_into(memoryview(flat).cast("B"))
         else:
             _convert(stream, flat, dtype)
         return out
-    out = np.empty((rows, cols), dtype=np.float64)
+    out = spill.empty((rows, cols))
     for j in range(cols):
         _convert(stream, out[:, j], dtype)
     return out

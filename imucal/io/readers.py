@@ -16,6 +16,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.file_contents import Table, Variables
+from imucal.io.spill import Spill
 from imucal.io.text_table import read_text, series_to_float
 
 
@@ -37,14 +38,15 @@ _UNSUPPORTED_MAGIC = {
 }
 
 
-def read_file(path: Path) -> Table | Variables:
-    """Read any supported format; library exceptions become one-line ImucalErrors."""
+def read_file(path: Path, spill: Spill | None = None) -> Table | Variables:
+    """Read any supported format; library exceptions become one-line ImucalErrors. ``spill``
+    allocates the arrays of a MATLAB v5 file (large ones mapped, :mod:`imucal.io.spill`)."""
     source = display_name(path)
     try:
         with path.open("rb") as fh:
             head = fh.read(1024)
         if head.startswith(_MAGIC_MAT5):
-            return _read_mat5(path)
+            return _read_mat5(path, spill)
         if head[:8] == _MAGIC_HDF5 or head[512:520] == _MAGIC_HDF5:
             return _read_hdf5(path)
         if head[:4] == _MAGIC_PARQUET:
@@ -92,13 +94,13 @@ def _as_matrix(value: object) -> np.ndarray | None:
     return arr
 
 
-def _read_mat5(path: Path) -> Variables:
+def _read_mat5(path: Path, spill: Spill | None) -> Variables:
     """Numeric variables straight from the file into their arrays (:mod:`imucal.io.load_mat5`);
     a file that reader does not follow the general way: checked, then read by scipy."""
     from imucal.io.load_mat5 import Unsupported, read_mat5_arrays
 
     try:
-        return Variables(path.name, read_mat5_arrays(path))
+        return Variables(path.name, read_mat5_arrays(path, spill))
     except Unsupported:
         return _read_mat5_general(path)
 

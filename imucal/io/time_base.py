@@ -8,6 +8,7 @@ import numpy as np
 from imucal.errors import ImucalError, plural
 from imucal.io.column_names import LABELS
 from imucal.io.parts import LoadOptions, Part
+from imucal.io.spill import Empty, elementwise
 from imucal.io.units import TIME_UNITS
 
 MAX_RATE_HZ = 100_000.0
@@ -26,6 +27,8 @@ def own_rows(acc: Part, gyro: Part, opts: LoadOptions) -> None:
             or not (acc.time is gyro.time or np.array_equal(acc.time, gyro.time,
                                                             equal_nan=True))):
         return  # not rows of one table
+    if _chunks_all(acc.values, np.isfinite, 0) and _chunks_all(gyro.values, np.isfinite, 0):
+        return  # every row holds both (the common case: no row-wise masks needed)
     has_a = np.isfinite(acc.values).any(axis=1)
     has_g = np.isfinite(gyro.values).any(axis=1)
     n = len(has_a)
@@ -39,8 +42,10 @@ def own_rows(acc: Part, gyro: Part, opts: LoadOptions) -> None:
                       "keeps its own rows and timestamps")
 
 
-def settle_time(part: Part, opts: LoadOptions) -> tuple[np.ndarray, np.ndarray]:
+def settle_time(part: Part, opts: LoadOptions, empty: Empty = np.empty
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Checked timestamps in seconds (from the file, else the rate); short NaN gaps bridged.
+    ``empty`` allocates timestamps made here (mapped when long, :mod:`imucal.io.spill`).
 
     The rate is the user's, else the one the file's preamble states; a time column wins over
     both, and a stated rate it contradicts by more than 1 % is a note."""
@@ -70,15 +75,17 @@ def settle_time(part: Part, opts: LoadOptions) -> tuple[np.ndarray, np.ndarray]:
         if TIME_UNITS[unit] == 1.0 and time.dtype == np.float64:
             t = time  # seconds already: no signal-sized copy (x * 1.0 == x)
         else:
+            scale = TIME_UNITS[unit]
             with np.errstate(over="ignore", invalid="ignore"):  # non-finite: refused below
-                t = time * TIME_UNITS[unit]
+                t = elementwise(lambda x, out: np.multiply(x, scale, out=out), time, empty)
         if opts.rate is not None:
             opts.notes.append(f"{label} timestamps taken from {part.time_label} of {source}; "
                               "the given rate is not used")
         elif part.stated_rate is not None:
             _compare_rate(t, part, opts.notes)
     elif rate is not None:
-        t = np.arange(n, dtype=np.float64) / rate
+        t = elementwise(lambda i, out: np.divide(i, rate, out=out),
+                        _Counter(n), empty)  # = np.arange(n, dtype=np.float64) / rate
         if opts.rate is None:
             opts.notes.append(f"timestamps from the rate {rate:g} Hz{rate_from}")
     else:
@@ -88,6 +95,21 @@ def settle_time(part: Part, opts: LoadOptions) -> tuple[np.ndarray, np.ndarray]:
     _check_timestamps(t, label, source)
     values, t = _bridge_gaps(values, t, label, source, opts.notes)
     return values, t
+
+
+class _Counter:
+    """The sample numbers 0 .. n - 1 as float64, read a slice at a time (``np.arange``'s
+    values: integers are exact)."""
+
+    def __init__(self, n: int) -> None:
+        self.shape = (n,)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key: slice) -> np.ndarray:
+        lo, hi, _ = key.indices(self.shape[0])
+        return np.arange(lo, hi, dtype=np.float64)
 
 
 def _rate(part: Part, opts: LoadOptions) -> tuple[float | None, str]:

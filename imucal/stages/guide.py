@@ -228,7 +228,7 @@ def gyro_full_scale(session: Session, fit: GyroFit) -> tuple[float | None, str]:
     zero = fit.model.b
     levels = []
     for axis in range(3):  # the level each clipped axis sits at, from its zero
-        runs = saturated_runs(w[:, [axis]])  # a chunk at a time: no mask of the signal
+        runs = saturated_runs(w[:, axis:axis + 1])  # a view, read a chunk at a time
         if len(runs):
             levels.append(min(np.abs(w[a:b, axis] - zero[axis]).min() for a, b in runs)
                           * per_unit)

@@ -67,7 +67,7 @@ def unwrap_session(session: Session) -> tuple[Session, list[RunWarning]]:
     for name, label, file, x, t in (("acc", "accelerometer", acc_file, session.acc, session.t_acc),
                                     ("gyro", "gyroscope", gyro_file, session.gyro,
                                      session.t_gyro)):
-        if x is None or len(x) < 3 or not np.all(x == np.rint(x)):
+        if x is None or len(x) < 3 or not _integer_valued(x):
             continue  # only integer-valued raw counts can wrap
         fixed, where = x, []
         for axis in range(x.shape[1]):
@@ -83,6 +83,13 @@ def unwrap_session(session: Session) -> tuple[Session, list[RunWarning]]:
             warnings.append(RunWarning(f"{name}_wraparound", f"{label} in {file}: raw counts "
                                        f"wrapped around and were unwrapped: {'; '.join(where)}"))
     return (dataclasses.replace(session, **changes) if changes else session), warnings
+
+
+def _integer_valued(x: np.ndarray, rows: int = 1 << 16) -> bool:
+    """``np.all(x == np.rint(x))`` a chunk of rows at a time, stopping at the first chunk
+    that is not (a calibrated-unit signal: its first): no copy of the signal."""
+    return all(bool(np.all(c == np.rint(c))) for c in (x[lo:lo + rows]
+                                                       for lo in range(0, len(x), rows)))
 
 
 def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str
