@@ -286,3 +286,43 @@ def test_a_worker_killed_mid_batch_costs_nothing_but_a_retry(fleet, capsys) -> N
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_workers_map_long_sessions_from_the_spill_folder(fleet) -> None:
+    """Sessions whose signals are mapped from a temporary file (as a long recording's are,
+    imucal/io/spill.py) calibrate on the workers to the same calib.json as in memory; nothing
+    is left in the folder, and where the signals are held does not count as a setting (a rerun
+    with another folder skips)."""
+    import json
+
+    from imucal.cli.options import load_kwargs
+    from imucal.fleet.batch import run_batch
+    from imucal.io.spill import SpillPolicy
+
+    root, _ = fleet
+    files = sorted((root / "in" / "devA").glob("2024-05-0[12]_s.mat"))
+    spill_dir = root / "spill"
+    spill_dir.mkdir()
+    plain = dict(load_kwargs(gyro=None, rate=None, acc_unit="auto", gyro_unit="auto",
+                             columns=None, time_unit="s"))
+    mapped = dict(plain, spill=SpillPolicy(directory=spill_dir, above_bytes=0))
+    reports = {name: run_batch(files, root / name, load_kw=kw, settings={}, workers=1)
+               for name, kw in (("in_memory", plain), ("mapped", mapped))}
+    assert list(spill_dir.iterdir()) == []
+    assert all(r["status"] == "ok" for r in reports["mapped"].rows)
+    clock = ("created", "elapsed_s", "calibrated_at")
+    calib = {name: {Path(r["path"]).name: {k: v for k, v in json.loads(
+        Path(r["calib_path"]).read_text()).items() if k not in clock}
+        for r in rep.rows} for name, rep in reports.items()}
+    assert len(calib["mapped"]) == len(files)
+    for name, d in calib["mapped"].items():
+        other = calib["in_memory"][name]
+        assert [k for k in d if d[k] != other.get(k)] == [], name
+    again = run_batch(files, root / "mapped", load_kw=dict(plain, spill=SpillPolicy()),
+                      settings={}, workers=1)
+    assert again.counts.skipped == len(files)
+    # The policy reaches the workers: a folder that is not there is each session's error row.
+    gone = run_batch(files, root / "gone", workers=1, settings={}, load_kw=dict(
+        plain, spill=SpillPolicy(directory=root / "no-such-folder", above_bytes=0)))
+    assert [r["status"] for r in gone.rows] == ["failed"] * len(files)
+    assert all("no-such-folder" in r["error"] for r in gone.rows)
