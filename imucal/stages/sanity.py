@@ -70,7 +70,10 @@ def unwrap_session(session: Session) -> tuple[Session, list[RunWarning]]:
         if x is None or len(x) < 3 or not _integer_valued(x):
             continue  # only integer-valued raw counts can wrap
         fixed, where = x, []
+        steps = _largest_steps(x)
         for axis in range(x.shape[1]):
+            if steps[axis] < 2.0 ** (WRAP_MIN_BITS - 0.5):
+                continue  # no step rounds to a register of WRAP_MIN_BITS bits: no wrap
             offset = _axis_offset(x[:, axis], t, f"{label} {AXES[axis]}", file)
             if offset is None:
                 continue
@@ -90,6 +93,20 @@ def _integer_valued(x: np.ndarray, rows: int = 1 << 16) -> bool:
     that is not (a calibrated-unit signal: its first): no copy of the signal."""
     return all(bool(np.all(c == np.rint(c))) for c in (x[lo:lo + rows]
                                                        for lo in range(0, len(x), rows)))
+
+
+def _largest_steps(x: np.ndarray, rows: int = 1 << 16) -> np.ndarray:
+    """Each axis's largest ``|x[i + 1] - x[i]|``, a chunk of rows at a time. A wrap is a step
+    whose ``rint(log2)`` is at least WRAP_MIN_BITS (:func:`_axis_offset`): an axis whose
+    largest step is below ``2^(WRAP_MIN_BITS - 1/2)`` cannot wrap, and is spared the
+    whole-signal quantiles (a 1 kHz recording's steps are mostly far smaller)."""
+    out = np.zeros(x.shape[1])
+    for lo in range(0, max(len(x) - 1, 1), rows):
+        with np.errstate(over="ignore", invalid="ignore"):  # absurd values: the full check
+            d = np.abs(np.diff(x[lo:lo + rows + 1], axis=0))
+        if len(d):
+            np.maximum(out, d.max(axis=0), out=out)
+    return out
 
 
 def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str

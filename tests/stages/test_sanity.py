@@ -343,3 +343,13 @@ def test_files_slightly_different_at_one_rate_warn(two_files):
     assert said in proc.stdout + proc.stderr
     codes = {w["code"] for w in json.loads((d / "short.json").read_text())["warnings"]}
     assert "lengths_differ" in codes
+
+
+def test_largest_steps_across_chunk_edges_equal_numpy_whole():
+    from imucal.stages.sanity import _largest_steps
+
+    rng = np.random.default_rng(5)
+    x = np.rint(rng.standard_normal((1000, 3)) * 50)
+    x[700, 1] += 30000  # one big step, just past a chunk's edge with rows=7 below
+    for rows in (7, 64, 1 << 16):
+        assert np.array_equal(_largest_steps(x, rows), np.abs(np.diff(x, axis=0)).max(axis=0))
