@@ -39,7 +39,8 @@ An envelope: consecutive samples are cut into buckets of one size; each bucket b
 which hold, per column, the bucket's minimum and maximum in the order they occur (so a rise
 stays a rise), stamped with the times of the bucket's first and middle sample: a peak is drawn
 at most one bucket away from where it happened, and never lost. Vectorised: no loop over
-buckets or runs.
+buckets or runs. A :class:`Cut` says how a signal is cut; :mod:`viewer.stream` makes its rows
+from the signal given a chunk at a time (a long session's signals are never read whole).
 """
 
 from __future__ import annotations
@@ -134,8 +135,9 @@ def magnitude_cut(still_runs: np.ndarray, n: int, keep_still: bool) -> Cut:
 
 
 def union_runs(runs: np.ndarray, n: int) -> np.ndarray:
-    """The ``[start, end)`` runs of ``runs_of_true(mask_of_runs(runs, n))`` without the mask:
-    clipped to ``[0, n)``, empty ones dropped, overlapping or touching ones merged, sorted."""
+    """The ``[start, end)`` runs (``start <= end``) of ``runs_of_true(mask_of_runs(runs, n))``
+    without the mask: clipped to ``[0, n)``, empty ones dropped, overlapping or touching ones
+    merged, sorted."""
     r = np.clip(np.asarray(runs, np.int64).reshape(-1, 2), 0, n)
     r = r[r[:, 1] > r[:, 0]]
     if len(r) == 0:

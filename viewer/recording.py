@@ -108,7 +108,9 @@ such an envelope inside the still blocks and one between them, no bucket across 
 as it is while there are at most ``STILL_ROWS`` of them (else an envelope of buckets of a few
 samples inside each block); between the blocks an envelope as (*). Each signal's entity holds
 static AnyValues ``samples``, ``rows``, ``still_bucket``, ``moving_bucket`` (samples per
-min/max pair; 1 = as they are): what was chosen for this session.
+min/max pair; 1 = as they are): what was chosen for this session. The rows are made from the
+signals read a chunk of rows at a time (:mod:`viewer.signal_rows`): a long session's calibrated
+signals are never made whole, and the rows are the same to the bit as the whole arrays'.
 
 Every number logged is the core's (``imucal.result.Result`` and the stage results it holds);
 this package only lays them out: log10 for the log-scale plots, arrow lengths, labels,
