@@ -70,8 +70,8 @@ class Result:
     def calibrated(self) -> CalibratedSignals:
         """The session's calibrated signals, whole (M2, M4): made on the first request and
         kept. The run itself never needs them whole (at 6 h and 1 kHz they are 1 GB): its
-        figures and the noise read them a block or a chunk at a time; ``--calibrated``, the
-        viewer and the exports ask for them."""
+        figures, the noise and the viewer's recording read them a block or a chunk at a time
+        (:attr:`calibrated_rows`); ``--calibrated`` and the exports ask for them."""
         return self.calibration.apply(self.session)
 
     # --- derived arrays: computed on request (the CLI never needs them, the viewer does) ---

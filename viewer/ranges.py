@@ -1,12 +1,13 @@
 """The y ranges the layout gives the magnitude and detector plots: all but the most extreme
 samples at each end (one knock or glitch must not squash a plot into a line).
 
-:func:`robust_range` takes the values whole; :func:`robust_range_of` takes them a chunk at a
-time (issue 12: the magnitudes of a 6-hour 1 kHz session, raw and calibrated, are 350 MB), and
-gives the same range to the bit: its quantiles are numpy's (``np.quantile``, linear method),
-interpolated the way numpy does between the values at the two ranks around each, and those
-values are exact order statistics found in bounded memory
-(:func:`imucal.numerics.order_stats.ranked_values`).
+:func:`robust_range` takes the values whole; :class:`RobustRange` takes them a chunk at a time
+(issue 12: the magnitudes of a 6-hour 1 kHz session, raw and calibrated, are 350 MB) and gives
+the same range to the bit, in the same pass that makes the rows: its quantiles are numpy's
+(``np.quantile``, linear method), interpolated as numpy does between the values at the two
+ranks around each, and those values are exact, from the few smallest and largest values kept.
+:func:`quantiles` finds them in two more passes over the values instead, keeping only a
+bracket around each rank (:func:`imucal.numerics.order_stats.ranked_values`): the fallback.
 """
 
 from __future__ import annotations
@@ -37,22 +38,84 @@ def robust_range(values: np.ndarray, q: float = 0.005, pad: float = PAD
     return _padded(lo, hi, pad)
 
 
-def robust_range_of(chunks: Chunks, finite: Finite, q: float, pad: float = PAD
-                    ) -> tuple[float, float] | None:
-    """:func:`robust_range` of the values ``chunks()`` yields (finite ones only; ``finite``
-    counted them), which are never held together. ``q`` 0 is the values' minimum and maximum
-    (``np.quantile``'s 0 and 1), read from ``finite`` without a pass."""
-    if finite.count < 2:
-        return None
-    if q == 0:
-        return _padded(finite.min, finite.max, pad)
-    lo, hi = quantiles(chunks, finite.count, [q, 1.0 - q])
-    return _padded(lo, hi, pad)
+class RobustRange:
+    """:func:`robust_range` of values fed a chunk at a time, in one pass: the ``k`` smallest
+    and ``k`` largest finite values are kept (exactly; ``k`` from ``n_max``, a bound on how
+    many values there will be, is what numpy's quantile at ``q`` and ``1 - q`` reads), so
+    the range is numpy's to the bit. Memory: ``2 k`` values, ``q`` of the values at each end
+    (0.5 % for the accelerometer's magnitude) and a chunk."""
+
+    def __init__(self, n_max: int, q: float, pad: float = PAD) -> None:
+        self.q, self.pad = q, pad
+        # numpy reads the values at floor((n - 1) q) and the next (and as far from the top
+        # at 1 - q); n <= n_max, and one more for the rounding of (n - 1)(1 - q).
+        k = int(np.floor((max(n_max, 1) - 1) * q)) + 3
+        self.low, self.high = _Smallest(k), _Smallest(k)
+        self.count = 0
+
+    def add(self, v: np.ndarray) -> None:
+        v = v[np.isfinite(v)] if not np.isfinite(v).all() else v
+        self.count += len(v)
+        self.low.add(v)
+        self.high.add(-v)  # the largest values, as the smallest of their negatives
+
+    def result(self, chunks: Chunks) -> tuple[float, float] | None:
+        """The range; ``chunks`` yields the values again (finite ones only), read only if a
+        rank lies outside what was kept (it cannot, for at most ``n_max`` values)."""
+        n = self.count
+        if n < 2:
+            return None
+        low, high = self.low.values(), -self.high.values()  # ascending; descending
+        q = np.asarray([self.q, 1.0 - self.q], dtype=np.float64)
+        virtual = (n - 1) * q  # numpy's linear method: the index in the sorted values
+        prev = np.minimum(np.floor(virtual).astype(np.int64), n - 1)
+        ranks = np.column_stack([prev, np.minimum(prev + 1, n - 1)])
+        got = np.empty(ranks.shape)
+        for i, r in np.ndenumerate(ranks):
+            if r < len(low):
+                got[i] = low[r]
+            elif n - 1 - r < len(high):
+                got[i] = high[n - 1 - r]
+            else:
+                return _padded(*quantiles(chunks, n, list(q)), self.pad)
+        lo, hi = _lerp(got[:, 0], got[:, 1], virtual - prev)
+        return _padded(lo, hi, self.pad)
+
+
+class _Smallest:
+    """The ``k`` smallest of the values fed, exactly (ties included as they come)."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self.kept: list[np.ndarray] = []
+        self.size = 0
+        self.bound = np.inf  # k values <= bound are kept: a larger one is not among them
+
+    def add(self, v: np.ndarray) -> None:
+        v = v[v <= self.bound] if self.bound < np.inf else v.copy()
+        if len(v):
+            self.kept.append(v)
+            self.size += len(v)
+        if self.size > 2 * self.k + (1 << 16):
+            self._shrink()
+
+    def _shrink(self) -> None:
+        a = np.concatenate(self.kept) if self.kept else np.zeros(0)
+        if len(a) > self.k:
+            a.partition(self.k - 1)
+            a = a[:self.k].copy()
+            self.bound = float(a.max())
+        self.kept, self.size = [a], len(a)
+
+    def values(self) -> np.ndarray:
+        """The kept values, ascending."""
+        self._shrink()
+        return np.sort(self.kept[0])
 
 
 def quantiles(chunks: Chunks, n: int, qs: list[float]) -> list[float]:
     """``np.quantile(values, qs)`` of the ``n`` values ``chunks()`` yields, to the bit, in
-    memory bounded by a chunk and a small bracket around each rank."""
+    memory bounded by a chunk and a small bracket around each rank (two passes)."""
     q = np.asarray(qs, dtype=np.float64)
     virtual = (n - 1) * q  # numpy's linear method: the index in the sorted values
     prev = np.floor(virtual).astype(np.int64)
@@ -80,22 +143,3 @@ def _padded(lo: float, hi: float, pad: float) -> tuple[float, float] | None:
     if not hi > lo:
         return None
     return float(lo - pad * (hi - lo)), float(hi + pad * (hi - lo))
-
-
-class Finite:
-    """How many finite values went by, and their minimum and maximum."""
-
-    def __init__(self) -> None:
-        self.count = 0
-        self.min, self.max = np.inf, -np.inf
-
-    def add(self, v: np.ndarray) -> np.ndarray:
-        """Count the finite values of ``v``; returns them (``v`` itself when all are)."""
-        ok = np.isfinite(v)
-        if not ok.all():
-            v = v[ok]
-        if len(v):
-            self.count += len(v)
-            self.min = min(self.min, float(v.min()))
-            self.max = max(self.max, float(v.max()))
-        return v

@@ -5,10 +5,10 @@ A 6-hour 1 kHz session's calibrated signals are 1 GB whole, its magnitudes 350 M
 recording logs ~20 000 rows of each (:mod:`viewer.decimate`). So nothing signal-sized is made
 here: each sensor is read once, ``CHUNK`` rows at a time (the raw rows, the calibrated ones
 ``Result.calibrated_rows`` makes, the magnitudes), into the envelopes of its magnitude and its
-axes (:class:`~viewer.stream.EnvelopeStream`) and the count of its finite magnitudes; the
-y range then takes two more passes over the magnitudes (exact quantiles,
-:func:`~viewer.ranges.robust_range_of`). Every row and range is the one the whole arrays give,
-to the bit (tests/viewer/test_signal_rows.py).
+axes (:class:`~viewer.stream.EnvelopeStream`) and the y range of its magnitude plot (exact
+quantiles from the few smallest and largest magnitudes, :class:`~viewer.ranges.RobustRange`).
+Every row and range is the one the whole arrays give, to the bit
+(tests/viewer/test_signal_rows.py).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from .columns import log10_axis
 from .decimate import Decimation, axes_cut, magnitude_cut
-from .ranges import Finite, robust_range_of
+from .ranges import RobustRange
 from .stream import EnvelopeStream
 
 if TYPE_CHECKING:
@@ -99,7 +99,7 @@ def _sensor(result: Result, which: str) -> SensorRows:
     # count only through their mean, the bias of M4 (viewer.decimate says why).
     mag = EnvelopeStream(t, magnitude_cut(still, n, keep_still=which == "acc"))
     axes_raw, axes_cal = EnvelopeStream(t, axes_cut(n)), EnvelopeStream(t, axes_cut(n))
-    finite = Finite()
+    y_range = RobustRange(2 * n, ACC_Q if which == "acc" else GYRO_Q)
     edges = result.row_edges(which, CHUNK)
     for a, b in _spans(edges):
         c = cal_rows(a, b)
@@ -107,17 +107,16 @@ def _sensor(result: Result, which: str) -> SensorRows:
         mag.feed(np.column_stack([r, m]))
         axes_raw.feed(raw[a:b])
         axes_cal.feed(c)
-        finite.add(r)
-        finite.add(m)
+        y_range.add(r)
+        y_range.add(m)
 
-    def magnitudes() -> Iterator[np.ndarray]:
+    def magnitudes() -> Iterator[np.ndarray]:  # again, only if the range needs them
         for a, b in _spans(edges):
             yield _finite(raw_norm(a, b))
             yield _finite(np.linalg.norm(cal_rows(a, b), axis=1))
 
-    y_range = robust_range_of(magnitudes, finite, ACC_Q if which == "acc" else GYRO_Q)
     return SensorRows(Series(*mag.rows()), Series(*axes_raw.rows()), Series(*axes_cal.rows()),
-                      y_range)
+                      y_range.result(magnitudes))
 
 
 def _detector(result: Result) -> tuple[Series, tuple[float, float] | None]:
@@ -126,13 +125,20 @@ def _detector(result: Result) -> tuple[Series, tuple[float, float] | None]:
     stat = detector_statistic(result)
     n = len(stat)
     rows = EnvelopeStream(result.session.t_acc, axes_cut(n))
-    finite = Finite()
+    y_range = RobustRange(n + 1, q=0.0)
     for a in range(0, n, CHUNK):
         v = log10_axis(stat[a:a + CHUNK])
         rows.feed(v)
-        finite.add(v)
-    finite.add(log10_axis(np.array([result.detection.threshold])))
-    return Series(*rows.rows()), robust_range_of(lambda: iter(()), finite, q=0.0)
+        y_range.add(v)
+    threshold = log10_axis(np.array([result.detection.threshold]))
+    y_range.add(threshold)
+
+    def values() -> Iterator[np.ndarray]:
+        for a in range(0, n, CHUNK):
+            yield _finite(log10_axis(stat[a:a + CHUNK]))
+        yield _finite(threshold)
+
+    return Series(*rows.rows()), y_range.result(values)
 
 
 def _finite(v: np.ndarray) -> np.ndarray:

@@ -18,7 +18,6 @@ import pytest
 import imucal
 import imucal.stages.apply as apply
 import viewer.decimate as D
-import viewer.ranges as R
 import viewer.signal_rows as S
 from imucal.report import report
 from imucal.synth import make_session
@@ -50,10 +49,9 @@ def test_recording_allocates_well_under_the_session(long_result, tmp_path, monke
     monkeypatch.setattr(D, "SCREEN_ROWS", 2000)
     monkeypatch.setattr(D, "STILL_ROWS", 4000)
     # Chunks of 8192 rows, the calibration's grid too (Calibration.rows computes whole chunks
-    # of its grid), and the quantiles' sample to match.
+    # of its grid).
     monkeypatch.setattr(S, "CHUNK", 1 << 13)
     monkeypatch.setattr(apply, "CHUNK_ROWS", 1 << 13)
-    monkeypatch.setattr(R, "SAMPLE", 1 << 13)
     session = s.acc.nbytes + s.gyro.nbytes + s.t_acc.nbytes + s.t_gyro.nbytes  # 16 MB
     assert len(s.t_acc) > 30 * S.CHUNK
 
@@ -64,8 +62,8 @@ def test_recording_allocates_well_under_the_session(long_result, tmp_path, monke
     rows, peak = _peak(save_recording, r, path)
     assert "calibrated" not in r.__dict__  # the calibrated signals were never made whole
     # Before: 30 MB, 1.8 times the session (the calibrated signals whole, the magnitudes, a
-    # gather of every sample); now 1.9 MB: a few chunks, the rows kept, the quantiles' sample
-    # and brackets.
+    # gather of every sample); now 1.9 MB: a few chunks, the rows kept and the magnitudes'
+    # tails the y ranges are read from.
     assert peak - report_peak < 0.2 * session, (peak, report_peak, session)
     # ... and what was written is the whole recording: every entity with its rows.
     ents = rb.entities(path)

@@ -140,31 +140,34 @@ def test_stream_fed_in_any_pieces_is_the_whole_envelope():
             np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
 
 
-def test_quantiles_are_numpys_to_the_bit(monkeypatch):
-    monkeypatch.setattr(R, "SAMPLE", 300)
+def test_ranges_are_numpys_to_the_bit(monkeypatch):
+    monkeypatch.setattr(R, "SAMPLE", 300)  # the fallback's brackets narrower than the values
     rng = np.random.default_rng(2)
     for i in range(120):
         n = int(rng.integers(2, 20_000))
         v = [rng.standard_normal(n), np.round(rng.standard_normal(n), 1),
              rng.integers(0, 4, n).astype(float)][i % 3]
         v[rng.integers(0, n, 3)] = 50.0  # spikes
-        q = float(rng.choice([0.0005, 0.005, 0.25, 0.5]))
+        q = float(rng.choice([0.0, 0.0005, 0.005, 0.25, 0.5]))
         step = int(rng.integers(1, 3000))
 
         def chunks(v=v, step=step):
             return (v[a:a + step] for a in range(0, len(v), step))
 
         assert R.quantiles(chunks, n, [q, 1 - q]) == list(np.quantile(v, [q, 1 - q]))
-        finite = R.Finite()
-        for c in chunks():
-            finite.add(c)
-        for qq in (0.0, q):
-            assert R.robust_range_of(chunks, finite, qq) == R.robust_range(v, qq)
+        # one pass, the tails kept; and with a bound too small, the fallback's two passes
+        for n_max in (n, n // 3):
+            one = R.RobustRange(n_max, q)
+            for c in chunks():
+                one.add(c)
+            assert one.result(chunks) == R.robust_range(v, q), (n, q, n_max)
 
 
 def test_nan_and_inf_are_left_out_of_a_range_as_before():
     v = np.array([np.nan, 1.0, np.inf, 2.0, 3.0, -np.inf, 2.5])
-    finite = R.Finite()
-    kept = [finite.add(c) for c in (v[:3], v[3:])]
-    assert finite.count == 4 and (finite.min, finite.max) == (1.0, 3.0)
-    assert R.robust_range_of(lambda: iter(kept), finite, 0.1) == R.robust_range(v, 0.1)
+    one = R.RobustRange(len(v), 0.1)
+    for c in (v[:3], v[3:]):
+        one.add(c)
+    assert one.count == 4
+    assert one.result(lambda: iter(())) == R.robust_range(v, 0.1)
+    assert R.RobustRange(5, 0.1).result(lambda: iter(())) is None  # nothing: the viewer's own
