@@ -205,10 +205,16 @@ def run_envelope(t: np.ndarray, x: np.ndarray, runs: np.ndarray, size: int
         idx = _indices(starts, lengths, lengths)
         return t[idx], x[idx]
     n_buckets = -(-lengths // size)  # per run
-    idx = _indices(starts, lengths, n_buckets * size)
     k = x2.shape[1]
-    v = _min_max_rows(x2[idx].reshape(-1, size, k))
-    te = np.column_stack([t[idx[::size]], t[idx[size // 2::size]]]).ravel()
+    if len(runs) == 1 and lengths[0] == n_buckets[0] * size:
+        # One run of whole buckets (a per-axis signal, a chunk of one): its rows as they lie.
+        a, b = int(starts[0]), int(runs[0, 1])
+        v = _min_max_rows(x2[a:b].reshape(-1, size, k))
+        te = np.column_stack([t[a:b:size], t[a + size // 2:b:size]]).ravel()
+    else:
+        idx = _indices(starts, lengths, n_buckets * size)
+        v = _min_max_rows(x2[idx].reshape(-1, size, k))
+        te = np.column_stack([t[idx[::size]], t[idx[size // 2::size]]]).ravel()
     out = v.reshape(-1, k)
     return te, (out[:, 0] if x.ndim == 1 else out)
 
