@@ -14,7 +14,7 @@ from imucal.session import Session
 from imucal.settings import Settings
 from imucal.stages.accel import AccFit
 from imucal.stages.accel_cv import AccCrossValidation
-from imucal.stages.apply import CalibratedSignals, Calibration
+from imucal.stages.apply import CHUNK_ROWS, CalibratedSignals, Calibration, _pieces
 from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
 from imucal.stages.guide import Guide
@@ -70,8 +70,8 @@ class Result:
     def calibrated(self) -> CalibratedSignals:
         """The session's calibrated signals, whole (M2, M4): made on the first request and
         kept. The run itself never needs them whole (at 6 h and 1 kHz they are 1 GB): its
-        figures and the noise read them a block or a chunk at a time; ``--calibrated``, the
-        viewer and the exports ask for them."""
+        figures, the noise and the viewer's recording read them a block or a chunk at a time
+        (:attr:`calibrated_rows`); ``--calibrated`` and the exports ask for them."""
         return self.calibration.apply(self.session)
 
     # --- derived arrays: computed on request (the CLI never needs them, the viewer does) ---
@@ -117,16 +117,52 @@ class Result:
     def raw_acc_norm(self) -> np.ndarray:
         """(N,) ``|a_raw|`` in the calibrated unit through the whole-session fit's nominal frame:
         the uncalibrated magnitude beside ``calibrated.acc_norm``."""
-        return self.whole.nominal_norm(self.session.acc)
+        return self.raw_acc_norm_rows(0, len(self.session.t_acc))
 
     @property
     def raw_gyro_norm(self) -> np.ndarray | None:
         """(M,) ``|w_raw|`` in nominal rad/s (first segment's nominal, see
         :meth:`GyroFit.nominal_rate`) beside ``calibrated.gyro_norm``; None without a fit."""
+        s = self.session
+        return None if not s.has_gyro else self.raw_gyro_norm_rows(0, len(s.t_gyro))
+
+    # --- the same, a chunk of rows at a time (the viewer reads a long session this way) ---
+
+    def raw_acc_norm_rows(self, a: int, b: int) -> np.ndarray:
+        """Rows ``[a, b)`` of :attr:`raw_acc_norm`, the same to the bit (row by row
+        arithmetic): no signal-sized array."""
+        return self.whole.nominal_norm(self.session.acc[a:b])
+
+    def raw_gyro_norm_rows(self, a: int, b: int) -> np.ndarray | None:
+        """Rows ``[a, b)`` of :attr:`raw_gyro_norm`, the same to the bit; None without a
+        gyroscope fit."""
         s, fit = self.session, self.segments[0].gyro
         if not s.has_gyro or fit is None:
             return None
-        return np.linalg.norm(fit.nominal_rate(s.gyro, s.gyro_unit), axis=1)
+        return np.linalg.norm(fit.nominal_rate(s.gyro[a:b], s.gyro_unit), axis=1)
+
+    @property
+    def calibrated_rows(self) -> StillSignals:
+        """The calibrated signals as row getters (``acc(a, b)``, ``gyro(a, b)`` or None):
+        bit for bit the rows of :attr:`calibrated`, without making it."""
+        return StillSignals(self.calibration, self.session)
+
+    def row_edges(self, which: str, rows: int = CHUNK_ROWS) -> np.ndarray:
+        """Edges ``0 = e_0 < e_1 < ... = N`` of chunks of at most ``rows`` rows of the
+        accelerometer (``"acc"``) or the gyroscope (``"gyro"``), cut where the calibration's
+        pieces (segments and the gaps between them) start and then every ``rows`` rows: on
+        these edges ``calibrated_rows`` computes each row once (``Calibration.rows`` works on
+        the grid of its pieces; elsewhere a chunk costs two of that grid's chunks)."""
+        s = self.session
+        t = s.t_acc if which == "acc" else s.t_gyro
+        if t is None:
+            return np.zeros(1, np.int64)
+        n = len(t)
+        # The pieces' edges depend on the clock and the segments' times only: the
+        # accelerometer's models stand in for a gyroscope that has none.
+        starts = [p0 for p0, p1, _ in _pieces(t, self.calibration.segments, "acc") if p1 > p0]
+        edges = [np.arange(p0, p1, rows) for p0, p1 in zip(starts, [*starts[1:], n])]
+        return np.unique(np.concatenate([*edges, [0, n]])).astype(np.int64)
 
 
 class StillSignals:

@@ -28,13 +28,16 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import numpy as np
 import rerun.blueprint as rrb
 
 from . import paths as P
 from .guide import guide_column
 from .layout import LCURVE_BOX, SWEEP_BOX, TRACE_BOX, TRACE_BOX_WIDE, Box
 from .optimiser import WHATS
+from .ranges import robust_range
+from .signal_rows import SignalRows, signal_rows
+
+__all__ = ["TAB_NAMES", "blueprint", "robust_range"]
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -91,29 +94,14 @@ def _plot2d(name: str, origin: str, box: Box) -> rrb.Spatial2DView:
                              visual_bounds=rrb.VisualBounds2D(x_range=x, y_range=y))
 
 
-def robust_range(values: np.ndarray, q: float = 0.005, pad: float = 0.08
-                 ) -> tuple[float, float] | None:
-    """A y range that holds all but the ``q`` most extreme samples at each end: one spike
-    (a knock, a glitch) must not squash the rest of the plot into a line."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    if len(v) < 2:
-        return None
-    lo, hi = np.quantile(v, [q, 1.0 - q])
-    if not hi > lo:
-        return None
-    return float(lo - pad * (hi - lo)), float(hi + pad * (hi - lo))
-
-
-def _overview(result: Result | None, gyro: bool) -> rrb.Horizontal:
-    acc_unit = "" if result is None else f" ({result.calibrated.acc_unit})"
-    acc_range = None if result is None else robust_range(
-        np.concatenate([result.raw_acc_norm, result.calibrated.acc_norm]))
+def _overview(result: Result | None, signals: SignalRows | None, gyro: bool
+              ) -> rrb.Horizontal:
+    acc_unit = "" if result is None else f" ({result.calibration.acc_unit})"
+    acc_range = None if signals is None else signals.acc.y_range
     magnitudes = [_ts(f"Accelerometer magnitude{acc_unit}: raw (orange, nominal scale) vs "
                       "calibrated (blue)", P.ACC_MAGNITUDE, y_range=acc_range)]
     if gyro:
-        gyro_range = None if result is None else robust_range(
-            np.concatenate([result.raw_gyro_norm, result.calibrated.gyro_norm]), q=0.0005)
+        gyro_range = None if signals is None or signals.gyro is None else signals.gyro.y_range
         magnitudes.append(_ts("Gyroscope magnitude (rad/s): raw (orange, nominal scale) vs "
                               "calibrated (blue)", P.GYRO_MAGNITUDE, y_range=gyro_range))
     return rrb.Horizontal(
@@ -124,9 +112,9 @@ def _overview(result: Result | None, gyro: bool) -> rrb.Horizontal:
         guide_column(result), column_shares=[3, 2, 2], name="Overview")
 
 
-def _signals(result: Result | None, gyro: bool) -> rrb.Vertical:
+def _signals(result: Result | None, signals: SignalRows | None, gyro: bool) -> rrb.Vertical:
     acc_raw = "" if result is None else f" ({result.session.acc_unit})"
-    acc_cal = "" if result is None else f" ({result.calibrated.acc_unit})"
+    acc_cal = "" if result is None else f" ({result.calibration.acc_unit})"
     acc = [_ts(f"Accelerometer axes, raw{acc_raw}: {XYZ_KEY}", P.ACC_RAW),
            _ts(f"Accelerometer axes, calibrated{acc_cal}: {XYZ_KEY}", P.ACC_CALIBRATED)]
     if gyro:
@@ -138,9 +126,7 @@ def _signals(result: Result | None, gyro: bool) -> rrb.Vertical:
                              P.GYRO_CALIBRATED)))
     else:
         grid = rrb.Vertical(*acc)
-    detector_range = None if result is None else robust_range(np.append(
-        np.log10(result.detection.statistic[result.detection.statistic > 0]),
-        np.log10(result.detection.threshold)), q=0.0)
+    detector_range = None if signals is None else signals.detector_range
     detector = _ts("Static detector (M1): log10 statistic (blue) and threshold (red)",
                    P.DETECTOR_STATISTIC, P.DETECTOR_THRESHOLD, y_range=detector_range)
     return _with_lanes(grid, detector, shares=[1.8, 1.0], name="Signals")
@@ -198,16 +184,21 @@ def _optimiser(gyro: bool) -> rrb.Horizontal:
     return rrb.Horizontal(*columns, name="Optimiser")
 
 
-def blueprint(result: Result | None = None, active_tab: int | str = 0) -> rrb.Blueprint:
+def blueprint(result: Result | None = None, active_tab: int | str = 0,
+              signals: SignalRows | None = None) -> rrb.Blueprint:
     """The layout; ``result`` decides which views there are (gyroscope, L-curve, before) and
-    the ranges and units the titles and axes show.
+    the ranges and units the titles and axes show (the ranges are ``signals``'s, made from
+    ``result`` when not given: :func:`~viewer.signal_rows.signal_rows`).
 
     ``active_tab`` is the tab shown first: an index or a name from :data:`TAB_NAMES` (the
     L-curve tab exists only when lambda came from the L-curve).
     """
-    gyro = result is None or (result.session.has_gyro and result.calibrated.gyro is not None)
+    if result is not None and signals is None:
+        signals = signal_rows(result)
+    gyro = result is None or result.calibration.applies_gyro(result.session)
     lcurve = result is None or result.whole.lcurve is not None
-    tabs: list[rrb.Container | rrb.View] = [_overview(result, gyro), _signals(result, gyro),
+    tabs: list[rrb.Container | rrb.View] = [_overview(result, signals, gyro),
+                                            _signals(result, signals, gyro),
                                             _gravity(result, gyro)]
     if lcurve:
         tabs.append(_lcurve(result))

@@ -39,7 +39,8 @@ An envelope: consecutive samples are cut into buckets of one size; each bucket b
 which hold, per column, the bucket's minimum and maximum in the order they occur (so a rise
 stays a rise), stamped with the times of the bucket's first and middle sample: a peak is drawn
 at most one bucket away from where it happened, and never lost. Vectorised: no loop over
-buckets or runs.
+buckets or runs. A :class:`Cut` says how a signal is cut; :mod:`viewer.stream` makes its rows
+from the signal given a chunk at a time (a long session's signals are never read whole).
 """
 
 from __future__ import annotations
@@ -84,22 +85,75 @@ def magnitudes_for_display(t: np.ndarray, v: np.ndarray, still: np.ndarray, keep
     """Magnitudes as logged: with ``keep_still`` the still samples as they are while there are
     at most ``STILL_ROWS`` of them (else an envelope of about that many rows), without it an
     envelope of about ``SCREEN_ROWS`` rows there too (the gyroscope); the samples between the
-    blocks an envelope of about ``SCREEN_ROWS`` rows. No bucket crosses a block's edge."""
-    still_rows = STILL_ROWS if keep_still else SCREEN_ROWS
-    still = np.asarray(still, bool)
-    n_still = int(still.sum())
-    runs_still = runs_of_true(still)
-    runs_moving = runs_of_true(~still)
-    s_size = 1 if n_still <= still_rows else bucket_size(runs_still, still_rows)
-    m_size = 1 if len(t) - n_still <= SCREEN_ROWS else bucket_size(runs_moving, SCREEN_ROWS)
-    if s_size == 1 and m_size == 1:
+    blocks an envelope of about ``SCREEN_ROWS`` rows. No bucket crosses a block's edge.
+
+    The whole signal at once; :mod:`viewer.stream` makes the same rows a chunk at a time."""
+    from .stream import EnvelopeStream
+
+    cut = magnitude_cut(runs_of_true(np.asarray(still, bool)), len(t), keep_still)
+    d = cut.decimation
+    if d.still_bucket == 1 and d.moving_bucket == 1:
         return t, v, Decimation(len(t), len(t), 1, 1)
-    parts = [run_envelope(t, v, runs, size)
-             for runs, size in ((runs_still, s_size), (runs_moving, m_size))]
-    tt = np.concatenate([p[0] for p in parts])
-    order = np.argsort(tt, kind="stable")
-    vv = np.concatenate([p[1] for p in parts])[order]
-    return tt[order], vv, Decimation(len(t), len(tt), s_size, m_size)
+    stream = EnvelopeStream(t, cut)
+    stream.feed(v)
+    return stream.rows()
+
+
+@dataclass(frozen=True)
+class Cut:
+    """How a signal of ``samples`` rows is cut into buckets: ``runs`` ``[start, end)`` that
+    cover ``[0, samples)`` in order, run i in buckets of ``size[i]`` samples (1: the samples as
+    they are). ``decimation`` is what is recorded beside it (its ``rows`` counted as made)."""
+
+    runs: np.ndarray  # (R, 2) int64
+    size: np.ndarray  # (R,) int64
+    decimation: Decimation
+
+
+def axes_cut(n: int) -> Cut:
+    """A per-axis signal (and the detector's statistic): as it is up to ``SCREEN_ROWS``
+    samples, else one envelope of at most that many rows (:func:`for_display`)."""
+    runs = np.array([[0, n]], np.int64)
+    size = 1 if n <= SCREEN_ROWS else bucket_size(runs, SCREEN_ROWS)
+    return Cut(runs, np.array([size], np.int64), Decimation(n, 0, size, size))
+
+
+def magnitude_cut(still_runs: np.ndarray, n: int, keep_still: bool) -> Cut:
+    """A magnitude's cut (:func:`magnitudes_for_display`): ``still_runs`` the still samples'
+    ``[start, end)`` ranges, in any order, overlapping or touching (they are merged, as a mask
+    of them would be: :func:`union_runs`); the gaps between them are the moving runs."""
+    still = union_runs(still_runs, n)
+    moving = gaps(still, n)
+    still_rows = STILL_ROWS if keep_still else SCREEN_ROWS
+    n_still = int((still[:, 1] - still[:, 0]).sum())
+    s_size = 1 if n_still <= still_rows else bucket_size(still, still_rows)
+    m_size = 1 if n - n_still <= SCREEN_ROWS else bucket_size(moving, SCREEN_ROWS)
+    runs = np.concatenate([still, moving])
+    size = np.repeat(np.array([s_size, m_size], np.int64), [len(still), len(moving)])
+    order = np.argsort(runs[:, 0], kind="stable")
+    return Cut(runs[order], size[order], Decimation(n, 0, s_size, m_size))
+
+
+def union_runs(runs: np.ndarray, n: int) -> np.ndarray:
+    """The ``[start, end)`` runs (``start <= end``) of ``runs_of_true(mask_of_runs(runs, n))``
+    without the mask: clipped to ``[0, n)``, empty ones dropped, overlapping or touching ones
+    merged, sorted."""
+    r = np.clip(np.asarray(runs, np.int64).reshape(-1, 2), 0, n)
+    r = r[r[:, 1] > r[:, 0]]
+    if len(r) == 0:
+        return np.zeros((0, 2), np.int64)
+    r = r[np.argsort(r[:, 0], kind="stable")]
+    reach = np.maximum.accumulate(r[:, 1])  # the furthest end so far
+    first = np.concatenate([[True], r[1:, 0] > reach[:-1]])  # starts a new merged run
+    group_end = np.maximum.reduceat(r[:, 1], np.flatnonzero(first))
+    return np.column_stack([r[first, 0], group_end])
+
+
+def gaps(runs: np.ndarray, n: int) -> np.ndarray:
+    """The ``[start, end)`` ranges of ``[0, n)`` outside the sorted, disjoint, non-touching
+    ``runs`` (what ``runs_of_true(~mask)`` gives)."""
+    edges = np.concatenate([[0], runs.ravel(), [n]]).reshape(-1, 2)
+    return edges[edges[:, 1] > edges[:, 0]].astype(np.int64)
 
 
 def envelope(t: np.ndarray, x: np.ndarray, max_rows: int) -> tuple[np.ndarray, np.ndarray]:
@@ -151,10 +205,16 @@ def run_envelope(t: np.ndarray, x: np.ndarray, runs: np.ndarray, size: int
         idx = _indices(starts, lengths, lengths)
         return t[idx], x[idx]
     n_buckets = -(-lengths // size)  # per run
-    idx = _indices(starts, lengths, n_buckets * size)
     k = x2.shape[1]
-    v = _min_max_rows(x2[idx].reshape(-1, size, k))
-    te = np.column_stack([t[idx[::size]], t[idx[size // 2::size]]]).ravel()
+    if len(runs) == 1 and lengths[0] == n_buckets[0] * size:
+        # One run of whole buckets (a per-axis signal, a chunk of one): its rows as they lie.
+        a, b = int(starts[0]), int(runs[0, 1])
+        v = _min_max_rows(x2[a:b].reshape(-1, size, k))
+        te = np.column_stack([t[a:b:size], t[a + size // 2:b:size]]).ravel()
+    else:
+        idx = _indices(starts, lengths, n_buckets * size)
+        v = _min_max_rows(x2[idx].reshape(-1, size, k))
+        te = np.column_stack([t[idx[::size]], t[idx[size // 2::size]]]).ravel()
     out = v.reshape(-1, k)
     return te, (out[:, 0] if x.ndim == 1 else out)
 

@@ -108,7 +108,9 @@ such an envelope inside the still blocks and one between them, no bucket across 
 as it is while there are at most ``STILL_ROWS`` of them (else an envelope of buckets of a few
 samples inside each block); between the blocks an envelope as (*). Each signal's entity holds
 static AnyValues ``samples``, ``rows``, ``still_bucket``, ``moving_bucket`` (samples per
-min/max pair; 1 = as they are): what was chosen for this session.
+min/max pair; 1 = as they are): what was chosen for this session. The rows are made from the
+signals read a chunk of rows at a time (:mod:`viewer.signal_rows`): a long session's calibrated
+signals are never made whole, and the rows are the same to the bit as the whole arrays'.
 
 Every number logged is the core's (``imucal.result.Result`` and the stage results it holds);
 this package only lays them out: log10 for the log-scale plots, arrow lengths, labels,
@@ -136,6 +138,7 @@ from .gravity import log_gravity
 from .guide import log_guide
 from .lcurve import log_lcurves
 from .optimiser import log_iterations
+from .signal_rows import SignalRows, signal_rows
 from .signals import log_block_errors, log_detector, log_signals
 from .summary import log_results, summary_markdown
 
@@ -146,14 +149,18 @@ __all__ = ["DECIMATE_ABOVE", "ENVELOPE_ROWS", "SCREEN_ROWS", "STILL_ROWS", "log_
            "new_recording", "save_recording", "summary_markdown"]
 
 
-def log_result(result: Result, rec: rr.RecordingStream) -> dict[str, int]:
-    """Log everything the viewer shows about ``result`` to ``rec``.
+def log_result(result: Result, rec: rr.RecordingStream, signals: SignalRows | None = None
+               ) -> dict[str, int]:
+    """Log everything the viewer shows about ``result`` to ``rec``; ``signals`` the signals'
+    rows if made already (:func:`~viewer.signal_rows.signal_rows`: the layout's ranges come
+    from the same pass).
 
     Returns the number of rows logged per temporal entity (what a test compares the file with).
     """
     rows: dict[str, int] = {}
-    log_signals(result, rec, rows)
-    log_detector(result, rec, rows)
+    signals = signal_rows(result) if signals is None else signals
+    log_signals(result, rec, rows, signals)
+    log_detector(result, rec, rows, signals)
     log_block_errors(result, rec, rows)
     log_gravity(result, rec, rows)
     log_guide(result, rec, rows)
@@ -181,8 +188,9 @@ def save_recording(result: Result, path: str | os.PathLike | BinaryIO) -> dict[s
     from .blueprint import blueprint
     from .rrd_file import rrd_sink
 
+    signals = signal_rows(result)  # the signals read once for the rows and the layout's ranges
     rec = new_recording()
-    with rrd_sink(rec, path, default_blueprint=blueprint(result)):
+    with rrd_sink(rec, path, default_blueprint=blueprint(result, signals=signals)):
         rec.send_recording_name(Path(result.session.source).name or "imucal")
-        rows = log_result(result, rec)
+        rows = log_result(result, rec, signals)
     return rows

@@ -24,68 +24,53 @@ from .columns import (
     style_lines,
     style_points,
 )
-from .decimate import (
-    Decimation,
-    bucket_size,
-    for_display,
-    magnitudes_for_display,
-)
+from .signal_rows import Series, SignalRows
 
 if TYPE_CHECKING:
     from imucal.result import Result
 
 
-def log_signals(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
+def log_signals(result: Result, rec: rr.RecordingStream, rows: dict[str, int],
+                signals: SignalRows) -> None:
     """The magnitudes and per-axis signals, as many rows as a screen shows plus the
-    accelerometer's still samples at full rate (:mod:`viewer.decimate` says why)."""
-    s, cal = result.session, result.calibrated
-    unit = cal.acc_unit
-    t, v, d = magnitudes_for_display(
-        s.t_acc, np.column_stack([result.raw_acc_norm, cal.acc_norm]), result.acc_still,
-        keep_still=True)
-    rows[P.ACC_MAGNITUDE] = _send(rec, P.ACC_MAGNITUDE, t, v, d)
+    accelerometer's still samples at full rate (:mod:`viewer.decimate` says why), as
+    :func:`~viewer.signal_rows.signal_rows` made them."""
+    s = result.session
+    unit = result.calibration.acc_unit
+    acc = signals.acc
+    rows[P.ACC_MAGNITUDE] = _send(rec, P.ACC_MAGNITUDE, acc.magnitude)
     style_lines(rec, P.ACC_MAGNITUDE, [f"raw |a| ({unit}, nominal)", f"calibrated |a| ({unit})"],
                 [RAW, CALIBRATED])
-    for path, x, label in ((P.ACC_RAW, s.acc, s.acc_unit), (P.ACC_CALIBRATED, cal.acc, unit)):
-        rows[path] = _send_axes(rec, path, s.t_acc, x)
+    for path, series, label in ((P.ACC_RAW, acc.raw, s.acc_unit),
+                                (P.ACC_CALIBRATED, acc.calibrated, unit)):
+        rows[path] = _send(rec, path, series)
         style_lines(rec, path, [f"{c} ({label})" for c in "xyz"], XYZ)
 
-    raw_gyro = result.raw_gyro_norm
-    if raw_gyro is None or cal.gyro is None:
+    gyro = signals.gyro
+    if gyro is None:
         return
-    # The gyroscope's still samples count only through their mean (the bias of M4): an
-    # envelope of screen size in the blocks too, never across a block's edge.
-    t, v, d = magnitudes_for_display(
-        s.t_gyro, np.column_stack([raw_gyro, cal.gyro_norm]), result.gyro_still,
-        keep_still=False)
-    rows[P.GYRO_MAGNITUDE] = _send(rec, P.GYRO_MAGNITUDE, t, v, d)
+    rows[P.GYRO_MAGNITUDE] = _send(rec, P.GYRO_MAGNITUDE, gyro.magnitude)
     style_lines(rec, P.GYRO_MAGNITUDE, ["raw |w| (rad/s, nominal)", "calibrated |w| (rad/s)"],
                 [RAW, CALIBRATED])
-    for path, x, label in ((P.GYRO_RAW, s.gyro, s.gyro_unit),
-                           (P.GYRO_CALIBRATED, cal.gyro, "rad/s")):
-        rows[path] = _send_axes(rec, path, s.t_gyro, x)
+    for path, series, label in ((P.GYRO_RAW, gyro.raw, s.gyro_unit),
+                                (P.GYRO_CALIBRATED, gyro.calibrated, "rad/s")):
+        rows[path] = _send(rec, path, series)
         style_lines(rec, path, [f"{c} ({label})" for c in "xyz"], XYZ)
 
 
-def _send_axes(rec: rr.RecordingStream, path: str, t: np.ndarray, x: np.ndarray) -> int:
-    te, xe = for_display(t, x)
-    bucket = 1 if len(te) == len(t) else bucket_size(np.array([[0, len(t)]]), len(te))
-    return _send(rec, path, te, xe, Decimation(len(t), len(te), bucket, bucket))
-
-
-def _send(rec: rr.RecordingStream, path: str, t: np.ndarray, v: np.ndarray, d: Decimation
-          ) -> int:
+def _send(rec: rr.RecordingStream, path: str, series: Series) -> int:
     """The rows, and beside them (static AnyValues) how they were decimated: the choice is
     the data's (its length and its still blocks), so the recording says what it was."""
+    d = series.decimation
     rec.log(path, rr.AnyValues(samples=d.samples, rows=d.rows, still_bucket=d.still_bucket,
                                moving_bucket=d.moving_bucket), static=True)
-    return send_scalars(rec, path, t, v)
+    return send_scalars(rec, path, series.t, series.v)
 
 
-def log_detector(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
+def log_detector(result: Result, rec: rr.RecordingStream, rows: dict[str, int],
+                 signals: SignalRows) -> None:
     det, t = result.detection, result.session.t_acc
-    rows[P.DETECTOR_STATISTIC] = _send_axes(rec, P.DETECTOR_STATISTIC, t,
-                                            log10_axis(det.statistic))
+    rows[P.DETECTOR_STATISTIC] = _send(rec, P.DETECTOR_STATISTIC, signals.detector)
     style_lines(rec, P.DETECTOR_STATISTIC, ["log10 s2 (M1)"], [0x4E79A7FF])
     rows[P.DETECTOR_THRESHOLD] = send_scalars(rec, P.DETECTOR_THRESHOLD, [t[0], t[-1]],
                                               np.full(2, log10_axis(det.threshold)))
