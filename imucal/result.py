@@ -14,7 +14,7 @@ from imucal.session import Session
 from imucal.settings import Settings
 from imucal.stages.accel import AccFit
 from imucal.stages.accel_cv import AccCrossValidation
-from imucal.stages.apply import CHUNK_ROWS, CalibratedSignals, Calibration, _pieces
+from imucal.stages.apply import CHUNK_ROWS, CalibratedSignals, Calibration, segment_pieces
 from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
 from imucal.stages.guide import Guide
@@ -160,7 +160,8 @@ class Result:
         n = len(t)
         # The pieces' edges depend on the clock and the segments' times only: the
         # accelerometer's models stand in for a gyroscope that has none.
-        starts = [p0 for p0, p1, _ in _pieces(t, self.calibration.segments, "acc") if p1 > p0]
+        pieces = segment_pieces(t, self.calibration.segments, "acc")
+        starts = [p0 for p0, p1, _ in pieces if p1 > p0]
         edges = [np.arange(p0, p1, rows) for p0, p1 in zip(starts, [*starts[1:], n])]
         return np.unique(np.concatenate([*edges, [0, n]])).astype(np.int64)
 

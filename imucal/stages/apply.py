@@ -139,7 +139,7 @@ class CalibratedSignals:
         return None if self.gyro is None else np.linalg.norm(self.gyro, axis=1)
 
 
-def _pieces(t: np.ndarray, segments: tuple[SegmentModels, ...],
+def segment_pieces(t: np.ndarray, segments: tuple[SegmentModels, ...],
             which: str) -> list[tuple[int, int, SensorModel]]:
     """``[lo, hi)`` sample ranges of ``t`` and the model applied to each: segment i owns
     ``[t_start_i, t_end_i]``, the gap between i and i + 1 takes the mean of their models."""
@@ -167,7 +167,7 @@ def _apply_piecewise(raw: np.ndarray, t: np.ndarray, segments: tuple[SegmentMode
     work is one matrix product per piece, not per sample.
     """
     out = np.empty(raw.shape, dtype=np.float64)
-    for lo, hi, model in _pieces(t, segments, which):
+    for lo, hi, model in segment_pieces(t, segments, which):
         _apply_into(model, raw[lo:hi], out[lo:hi])
     return out
 
@@ -178,7 +178,7 @@ def _apply_rows(raw: np.ndarray, t: np.ndarray, segments: tuple[SegmentModels, .
     computed over the chunks of the whole's grid (``CHUNK_ROWS`` from the piece's start) that
     meet ``[lo, hi)``, so every matrix product is the one the whole makes (the same rows, the
     same shapes) and none depends on how BLAS treats a shorter or shifted block."""
-    pieces = [(p0, p1, m) for p0, p1, m in _pieces(t, segments, which)
+    pieces = [(p0, p1, m) for p0, p1, m in segment_pieces(t, segments, which)
               if max(p0, lo) < min(p1, hi)]
     out = None
     if len(pieces) != 1 or not (pieces[0][0] <= lo and hi <= pieces[0][1]):
