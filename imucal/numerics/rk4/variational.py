@@ -19,8 +19,7 @@ from imucal.numerics.rk4.buckets import Bucket
 from imucal.numerics.rk4.hamilton import Quat, Vec, mul
 from imucal.numerics.rk4.integrate import slab_steps
 from imucal.numerics.rk4.lazy import Slab, slab_ranges, slab_rows
-from imucal.numerics.rk4.prefix_scan import prefix_rows
-from imucal.numerics.rk4.product import product_rows
+from imucal.numerics.rk4.prefix_scan import prefix_and_product
 from imucal.numerics.rk4.rotation_matrix import matrix_rows
 
 
@@ -115,10 +114,9 @@ def _bucket_sensitivity(src, shape: tuple[int, int], b: list[float], cal
             for i in range(3):
                 S[:, 4 * i, :] = first[:, 0, :]
             R = np.empty((kb, 9, r1 - r0))
-        P = slab_steps(s.w, s.dt, s.dt2, cal)
-        q = product_rows(P)
+        # orientations at r0 + 1 .. r1 from r0, and the slab's product as integrated alone
+        Q, q = prefix_and_product(tuple(x[:, 0, :] for x in slab_steps(s.w, s.dt, s.dt2, cal)))
         acc = q if acc is None else mul(acc, q)
-        Q = prefix_rows(tuple(x[:, 0, :] for x in P))  # orientation at r0 + 1 .. r1 from r0
         Rs = R[:, :, :r1 - r0]
         matrix_rows(Q, Rs.transpose(2, 1, 0))
         part = np.matmul(Rs, _slab_weights(s, b))  # (kb, 9, 4)
