@@ -113,12 +113,13 @@ def _bucket_sensitivity(src, shape: tuple[int, int], b: list[float], cal
             first = _weighted(tuple(x[:1] for x in s.w), b, np.zeros((1, kb)) + 0.5 * s.dt[:1])
             for i in range(3):
                 S[:, 4 * i, :] = first[:, 0, :]
-            R = np.empty((kb, 9, r1 - r0))
+            R = np.empty((r1 - r0, 9, kb))
         # orientations at r0 + 1 .. r1 from r0, and the slab's product as integrated alone
         Q, q = prefix_and_product(tuple(x[:, 0, :] for x in slab_steps(s.w, s.dt, s.dt2, cal)))
         acc = q if acc is None else mul(acc, q)
-        Rs = R[:, :, :r1 - r0]
-        matrix_rows(Q, Rs.transpose(2, 1, 0))
+        # Written time-major (contiguous), then laid out interval-major for one matrix product
+        # per interval (scattered writes into that layout cost twice as much at 6 h)
+        Rs = np.ascontiguousarray(matrix_rows(Q, R[:r1 - r0]).transpose(2, 1, 0))
         part = np.matmul(Rs, _slab_weights(s, b))  # (kb, 9, 4)
         if carry is None:
             carry = tuple(x[-1] for x in Q)
