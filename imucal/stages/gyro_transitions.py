@@ -43,10 +43,10 @@ def transition_samples(t, block_times: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return s, np.maximum(e, s)
 
 
-# Passes over the turns kept per Transitions (each (K, 4) rotations, with (K, 9, 4) more for a
-# sensitivity): a fit asks for the Jacobian where it has just evaluated the residuals, and the
-# stage integrates the solution again for its figures.
-KEPT_PASSES = 4
+# Rotations kept per Transitions, by model ((K, 4) each; with the latest sensitivity, (K, 9, 4)
+# more): a fit asks for the Jacobian where it has just evaluated the residuals, and the stage
+# integrates the solutions again for its figures.
+KEPT_ROTATIONS = 4
 
 
 class Transitions:
@@ -73,7 +73,8 @@ class Transitions:
         # (numerics/rk4/lazy.py; the same values to the bit as gathered once).
         self.layout = StepLayout(t, s, e, lazy=True)
         self.rates = self.layout.lazy_samples(w_raw)
-        self._passes: dict[bytes, tuple] = {}  # the latest passes by model (KEPT_PASSES)
+        self._rotations: dict[bytes, np.ndarray] = {}  # the latest, by model
+        self._latest: tuple[bytes, Sensitivity] | None = None  # the latest sensitivity
 
     def __len__(self) -> int:
         return len(self.starts)
@@ -82,12 +83,12 @@ class Transitions:
     def _key(M: np.ndarray, b: np.ndarray) -> bytes:
         return np.asarray(M, float).tobytes() + np.asarray(b, float).tobytes()
 
-    def _keep(self, key: bytes, value: tuple) -> tuple:
-        self._passes.pop(key, None)
-        self._passes[key] = value
-        while len(self._passes) > KEPT_PASSES:
-            del self._passes[next(iter(self._passes))]
-        return value
+    def _keep(self, key: bytes, q: np.ndarray) -> np.ndarray:
+        self._rotations.pop(key, None)
+        self._rotations[key] = q
+        while len(self._rotations) > KEPT_ROTATIONS:
+            del self._rotations[next(iter(self._rotations))]
+        return q
 
     def rotations(self, model: SensorModel, sensitivity: bool = False) -> np.ndarray:
         """Quaternion of the body rotation over each transition under ``model`` (K, 4).
@@ -99,17 +100,19 @@ class Transitions:
         if sensitivity:
             return self._sensitivity(model).q.copy()
         key = self._key(model.matrix, model.b)
-        if key not in self._passes:
-            self._keep(key, (self.rotations_many([model])[0],))
-        kept = self._passes[key][0]
-        return (kept.q if isinstance(kept, Sensitivity) else kept).copy()
+        q = self._rotations.get(key)
+        if q is None:
+            q = self.rotations_many([model])[0]
+        return self._keep(key, q).copy()
 
     def _sensitivity(self, model: SensorModel) -> Sensitivity:
         key = self._key(model.matrix, model.b)
-        kept = self._passes.get(key)
-        if kept is not None and isinstance(kept[0], Sensitivity):
-            return kept[0]
-        return self._keep(key, (self.layout.sensitivity(self.rates, model.matrix, model.b),))[0]
+        if self._latest is None or self._latest[0] != key:
+            self._latest = None  # let the last one go first
+            found = self.layout.sensitivity(self.rates, model.matrix, model.b)
+            self._latest = (key, found)
+        self._keep(key, self._latest[1].q)
+        return self._latest[1]
 
     def rotations_many(self, models: list[SensorModel]) -> np.ndarray:
         """:meth:`rotations` for several models in one pass (k, K, 4)."""
@@ -127,11 +130,13 @@ class Transitions:
         cross-validation predicts each held-out turn with its own fold's fit this way."""
         out = np.empty((len(self), 4))
         for bucket, w in zip(self.layout.buckets, self.rates):
-            Mk, bk = M[bucket.idx], b[bucket.idx]  # one column of the bucket per transition
+            # one column of the bucket per transition: M[k][i, j] as Mk[i, j][k], contiguous
+            Mk = np.ascontiguousarray(M[bucket.idx].transpose(1, 2, 0))
+            bk = np.ascontiguousarray(b[bucket.idx].T)
 
             def cal(x, Mk=Mk, bk=bk):  # a slab of rows at a time, not the bucket at once
-                d = [v[:, 0] - bk[:, j] for j, v in enumerate(x)]
-                return tuple((d[0] * Mk[:, i, 0] + d[1] * Mk[:, i, 1] + d[2] * Mk[:, i, 2]
+                d = [v[:, 0] - bk[j] for j, v in enumerate(x)]
+                return tuple((d[0] * Mk[i, 0] + d[1] * Mk[i, 1] + d[2] * Mk[i, 2]
                               )[:, None] for i in range(3))
 
             q = integrate_buckets([bucket], len(self), [w], cal)[0]  # padding: dt = 0
@@ -180,10 +185,7 @@ class Transitions:
         cal = calibrator([(model.matrix, model.b)])
         out = 0.0
         for _, src, r0, r1 in self._slabs():  # a slab at a time: temporaries stay small
-            s = src.slab(r0, r1)
-            c = cal(tuple(x[:-1][:, None, :] for x in s.w))
-            norm = np.sqrt(c[0] ** 2 + c[1] ** 2 + c[2] ** 2)[:, 0, :]
-            out = max(out, float(np.max(norm * s.dt)))
+            out = max(out, _step_angle(src.slab(r0, r1), cal))
         return out
 
     def isotropic(self, bias: np.ndarray):
@@ -224,9 +226,7 @@ class Transitions:
             # whole: one turn's samples), row after row for several (read a slab at a time).
             total = np.zeros(kb)
             for r0, r1 in ([(0, L)] if kb == 1 else slab_ranges(L, kb)):
-                s = src.slab(r0, r1)
-                d = [0.5 * (x[:-1] + x[1:]) - b for x, b in zip(s.w, bias)]
-                f = np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * s.dt
+                f = _raw_turn_rows(src.slab(r0, r1), bias)
                 if kb == 1:
                     total = np.sum(f, axis=0)
                     continue
@@ -234,6 +234,19 @@ class Transitions:
                     total += row
             out[bucket.idx] = total
         return out
+
+
+def _step_angle(s: Slab, cal) -> float:
+    """The largest ``|w(t_n)| dt_n`` of a slab, the rate calibrated by ``cal``."""
+    c = cal(tuple(x[:-1][:, None, :] for x in s.w))
+    norm = np.sqrt(c[0] ** 2 + c[1] ** 2 + c[2] ** 2)[:, 0, :]
+    return float(np.max(norm * s.dt))
+
+
+def _raw_turn_rows(s: Slab, bias: np.ndarray) -> np.ndarray:
+    """``|mean of two samples - bias| dt`` for every step of a slab (m, K_b)."""
+    d = [0.5 * (x[:-1] + x[1:]) - b for x, b in zip(s.w, bias)]
+    return np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2) * s.dt
 
 
 def _isotropic_terms(s: Slab, bias: list[float]) -> tuple:

@@ -49,8 +49,9 @@ def integrate_buckets(buckets: list[Bucket], n: int, samples: list,
         src = slab_rows(bucket, w)
         acc = None
         for r0, r1 in slab_ranges(*bucket.dt.shape):
-            s = src.slab(r0, r1)
-            q = product_rows(slab_steps(s.w, s.dt, s.dt2, cal))
+            w_slab, dt, dt2, _ = src.slab(r0, r1)
+            q = product_rows(slab_steps(w_slab, dt, dt2, cal))
+            del w_slab, dt, dt2  # views of the block read: let it go when the next is read
             acc = q if acc is None else mul(acc, q)
         out[:, bucket.idx] = np.stack(np.broadcast_arrays(*acc), axis=-1)
     return out / np.linalg.norm(out, axis=-1, keepdims=True)

@@ -105,8 +105,9 @@ class _Block(NamedTuple):
 
 # Rows of each interval read from the source at once, at least: as many slabs as that takes
 # (runs of a few rows from thousands of places are bound by the memory's latency; measured at
-# 6 h, 1 kHz, 9 rows a slab: 0.52 s a pass a slab at a time, 0.27-0.29 s in runs of 36-72).
-RUN = 48
+# 6 h, 1 kHz, 9 rows a slab: 0.52 s a pass a slab at a time, 0.35-0.45 s in runs of 18 (2
+# slabs, 2 MB), 0.29 s in runs of 36 (4 slabs, 4 MB)).
+RUN = 16
 
 
 class LazyRows:
@@ -125,10 +126,10 @@ class LazyRows:
 
     def slab(self, r0: int, r1: int, ahead: bool = False) -> Slab:
         hi = r1 + 1 + ahead  # sample rows r0 .. hi - 1: row L + 1 is padding for all
+        if self._block is None or r0 < self._block.lo or hi > self._block.hi:
+            self._block = None  # let the last block go before reading the next
+            self._block = self._read(r0, max(hi, min(r0 + self.block_rows, self.shape[0] + 1)))
         b = self._block
-        if b is None or r0 < b.lo or hi > b.hi:
-            b = self._block = self._read(r0, max(hi, min(r0 + self.block_rows,
-                                                         self.shape[0] + 1)))
         if r1 >= self.shape[0] - 1:  # the bucket's last slab
             self._block = None
         i, m = r0 - b.lo, r1 - r0
@@ -139,18 +140,22 @@ class LazyRows:
         """Sample rows ``lo .. hi - 1``: runs of rows of an ndarray source (when no run passes
         its end), one gather of every sample otherwise; the same values either way."""
         first = self.starts + lo
-        span = hi - lo
+        kb, span = len(first), hi - lo
         if (isinstance(self.x, np.ndarray) and isinstance(self.t, np.ndarray)
-                and len(first) and int(first.max()) + span <= len(self.t)):
+                and kb and int(first.max()) + span <= len(self.t)):
             pad = _padding(self.n_steps, self.shortest, lo, hi)
-            tt = _runs(self.t, first, span).T
-            g = _runs(self.x, first, span).reshape(len(first), span, -1)
+            x = self.x.reshape(len(self.x), -1)
+            w = np.empty((x.shape[1], span, kb))
+            for c in range(x.shape[1]):  # a component at a time: a third of the transient
+                w[c] = _runs(x[:, c], first, span).T
+            tt = _runs(self.t, first, span)
+            dt = np.ascontiguousarray((tt[:, 1:] - tt[:, :-1]).T)  # lay_out's subtraction
         else:  # any other array: one gather; a padding row reads the interval's last sample
             idx, pad = _sample_index(self.starts, self.n_steps, self.shortest, lo, hi)
             tt = _rows_at(self.t, idx.ravel()).reshape(idx.shape)
-            g = _rows_at(self.x, idx.ravel()).reshape(span, len(first), -1).transpose(1, 0, 2)
-        w = np.ascontiguousarray(g.transpose(2, 1, 0))  # (C, span, K_b): one array per component
-        dt = tt[1:] - tt[:-1]  # the same subtraction as lay_out's
+            dt = tt[1:] - tt[:-1]
+            w = np.ascontiguousarray(_rows_at(self.x, idx.ravel()).reshape(span * kb, -1).T)
+            w = w.reshape(-1, span, kb)  # (C, span, K_b): one array per component
         if pad is not None:
             np.copyto(w, 0.0, where=pad[None])
             np.copyto(dt, 0.0, where=pad[1:])  # lay_out's padding steps are 0
