@@ -144,10 +144,9 @@ class LazyRows:
         if (isinstance(self.x, np.ndarray) and isinstance(self.t, np.ndarray)
                 and kb and int(first.max()) + span <= len(self.t)):
             pad = _padding(self.n_steps, self.shortest, lo, hi)
-            x = self.x.reshape(len(self.x), -1)
-            w = np.empty((x.shape[1], span, kb))
-            for c in range(x.shape[1]):  # a component at a time: a third of the transient
-                w[c] = _runs(x[:, c], first, span).T
+            g = _runs(self.x.reshape(len(self.x), -1), first, span)  # (K_b, span, C)
+            w = np.ascontiguousarray(g.transpose(2, 1, 0))  # (C, span, K_b)
+            del g
             tt = _runs(self.t, first, span)
             dt = np.ascontiguousarray((tt[:, 1:] - tt[:, :-1]).T)  # lay_out's subtraction
         else:  # any other array: one gather; a padding row reads the interval's last sample
