@@ -1,11 +1,11 @@
 """A bucket's samples and step times read a slab of rows at a time, on request (method.md M5;
 issue 12): what a bucket keeps is each interval's first sample and step count, so the arrays
-laid out time-major (:mod:`.buckets`) never exist whole, only the slab being integrated.
+laid out time-major (:mod:`.buckets`) never exist whole, only a block of a few slabs.
 
-A slab's rows are found once and read from the source arrays in one gather each (all the
-components of a sample at once, then the timestamps): the source is only ever read by
-``len``, ``.shape`` and a gather with a 1-D integer array, which an array kept on disk offers
-as well as an ndarray. Every slab holds the same values, to the bit, as the same rows of
+A block's rows are read from the source arrays once for every component and the timestamps:
+from an ndarray as one run of rows per interval (through a strided view), from any other
+array by one gather with a 1-D integer array (all an array kept on disk need offer, with
+``len`` and ``.shape``). Every slab holds the same values, to the bit, as the same rows of
 :func:`.buckets.lay_out`'s arrays, so whatever is computed from a slab is unchanged.
 """
 
@@ -103,10 +103,11 @@ class _Block(NamedTuple):
     dt: np.ndarray
 
 
-# Rows of each interval read from the source at once, at least: as many slabs as that takes
-# (runs of a few rows from thousands of places are bound by the memory's latency; measured at
-# 6 h, 1 kHz, 9 rows a slab: 0.52 s a pass a slab at a time, 0.35-0.45 s in runs of 18 (2
-# slabs, 2 MB), 0.29 s in runs of 36 (4 slabs, 4 MB)).
+# Rows of each interval read from the source at once, at least: as many slabs as that takes.
+# Runs of a few rows from thousands of places are bound by the memory's latency: at 6 h, 1 kHz
+# (9 rows a slab) a pass's reads took 0.52 s a slab at a time, 0.26 s in runs of 18 rows (2
+# slabs, 2 MB held: the stage's memory peak stays under main's; runs of 36 gain a little more
+# for 2 MB more).
 RUN = 16
 
 
