@@ -471,7 +471,8 @@ def complex_step_jacobian(p: dict, theta, h: float = 1e-20):
     One complex evaluation per parameter, each about four real ones."""
     import numpy as np
 
-    from imucal.numerics.rk4 import SLAB, mul, product_rows, rk4_raw
+    from imucal.numerics.rk4 import mul, product_rows, rk4_raw
+    from imucal.numerics.rk4.lazy import slab_ranges
 
     tr, u_prev, model_of = p["tr"], p["u_prev"], p["model_of"]
     layout = tr.layout
@@ -488,17 +489,15 @@ def complex_step_jacobian(p: dict, theta, h: float = 1e-20):
             return tuple(d[0] * M[r, 0] + d[1] * M[r, 1] + d[2] * M[r, 2] for r in range(3))
 
         q = np.zeros((len(tr), 4), complex)
-        for (idx, _, _, dt, dt2), w in zip(layout.buckets, tr.rates):
-            L, kb = dt.shape
-            rows = max(1, SLAB // max(kb, 1))
+        for bucket, src in zip(layout.buckets, tr.rates):
             acc = None
-            for r0 in range(0, L, rows):
-                r1 = min(r0 + rows, L)
-                c = cal(tuple(x[r0:r1 + 1] for x in w))
+            for r0, r1 in slab_ranges(*bucket.dt.shape):
+                w, dt, dt2, _ = src.slab(r0, r1)
+                c = cal(w)
                 qq = product_rows(rk4_raw(tuple(x[:-1] for x in c), tuple(x[1:] for x in c),
-                                          dt[r0:r1], dt2[r0:r1]))
+                                          dt, dt2))
                 acc = qq if acc is None else mul(acc, qq)
-            q[idx] = np.stack(acc, axis=-1)
+            q[bucket.idx] = np.stack(acc, axis=-1)
         q = q / np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
         w_, x_, y_, z_ = q.T
         R = np.stack([

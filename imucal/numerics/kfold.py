@@ -20,6 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
+# Rows of the Jacobian whose products are made at once (1 MB of them for 12 parameters).
+CHUNK_ROWS = 1024
+
 
 def fold_of_groups(n_groups: int, n_folds: int) -> np.ndarray:
     """Fold of each of ``n_groups`` groups, dealt in turn (group i in fold i mod n_folds): every
@@ -40,10 +43,14 @@ def kfold_refits(J: np.ndarray, r: np.ndarray, theta: np.ndarray, theta0: np.nda
     p = J.shape[1]
     H = J.T @ J + lam * np.eye(p)
     g = J.T @ r + lam * (np.asarray(theta, float) - np.asarray(theta0, float))
-    # Each fold's share of J'J and J'r, summed row by row into its slot (no loop over folds).
+    # Each fold's share of J'J and J'r, summed row by row into its slot (no loop over folds),
+    # a chunk of rows at a time: np.add.at adds in the order of the rows, so the sums are the
+    # same to the bit, without an (n, p, p) array of products (15 MB for 13,000 rows of 12).
     H_out = np.zeros((n_folds, p, p))
     g_out = np.zeros((n_folds, p))
-    np.add.at(H_out, fold_of_row, J[:, :, None] * J[:, None, :])
+    for a in range(0, len(J), CHUNK_ROWS):
+        Jc, fc = J[a:a + CHUNK_ROWS], fold_of_row[a:a + CHUNK_ROWS]
+        np.add.at(H_out, fc, Jc[:, :, None] * Jc[:, None, :])
     np.add.at(g_out, fold_of_row, J * r[:, None])
     step = np.linalg.solve(H[None] - H_out, (g[None] - g_out)[..., None])[..., 0]
     return np.asarray(theta, float)[None, :] - step

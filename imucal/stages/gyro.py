@@ -17,13 +17,14 @@ from imucal.numerics.least_squares import (
     trace_of,
 )
 from imucal.numerics.quaternion import rotate_inverse, to_matrix
-from imucal.numerics.windows import samples_within, segment_sums
+from imucal.numerics.windows import segment_sums
 from imucal.settings import GyroSettings, Settings
 from imucal.stages.gyro_cv import GyroCV, fit_bias_choice
 from imucal.stages.gyro_transitions import (
     Transitions,
     angle_between,
     gyro_model_of,
+    sorted_position,
 )
 from imucal.stages.saturation import blocks_with
 from imucal.warning import RunWarning
@@ -106,11 +107,14 @@ class GyroFit:
         return angle_between(self.u_meas, self.u_pred_after)
 
 
-def static_bias(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray, how: str
-                ) -> tuple[np.ndarray, str]:
+def static_bias(w_raw, t, block_times: np.ndarray, how: str) -> tuple[np.ndarray, str]:
     """Gyroscope bias from the still periods (method.md §4): the samples of each block are
-    those of :func:`~imucal.numerics.windows.samples_within` (the product's one convention)."""
-    lo, hi = samples_within(t, block_times).T
+    those of :func:`~imucal.numerics.windows.samples_within` (the product's one convention).
+    ``w_raw`` and ``t`` are read by gathers and a slice of rows a block (they may be arrays
+    kept on disk)."""
+    times = np.asarray(block_times, dtype=float).reshape(-1, 2)
+    lo = sorted_position(t, times[:, 0], side="left")
+    hi = np.maximum(sorted_position(t, times[:, 1], side="right"), lo)
     ok = (hi - lo) >= 2
     if not ok.any():
         raise ImucalError("no gyroscope samples fall inside the static blocks; check that the "
@@ -122,9 +126,11 @@ def static_bias(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarray, how: 
     if how != "all":
         raise ImucalError(f"unknown gyroscope bias source {how!r}; expected 'all' or 'first'",
                           source="settings", field="gyro_bias")
-    total = segment_sums(w_raw, lo, hi).sum(axis=0)
+    # each block's sum as segment_sums makes it over the whole signal (its own range only)
+    sums = np.array([segment_sums(w_raw[a:b], np.zeros(1, np.int64), np.full(1, b - a))[0]
+                     for a, b in zip(lo, hi)])
     n = int((hi - lo).sum())
-    return total / n, f"mean over all {len(lo)} static blocks ({n} samples)"
+    return sums.sum(axis=0) / n, f"mean over all {len(lo)} static blocks ({n} samples)"
 
 
 def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: np.ndarray

@@ -89,7 +89,9 @@ def fit_turns(tr: Transitions, u_prev: np.ndarray, u_meas: np.ndarray, bias: np.
         return gyro_model_of(theta, bias, s0)
 
     def res(theta: np.ndarray) -> np.ndarray:
-        return (u_meas - tr.predict(model_of(theta), u_prev)).ravel()
+        # LM asks for the Jacobian where it has just evaluated the residuals (when it accepts
+        # the step): one pass over the samples makes both (Transitions.rotations).
+        return (u_meas - tr.predict(model_of(theta), u_prev, sensitivity=True)).ravel()
 
     def jac(theta: np.ndarray) -> np.ndarray:
         return tr.jacobian(model_of, theta, u_prev)

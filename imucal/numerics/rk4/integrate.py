@@ -10,43 +10,48 @@ import numpy as np
 
 from imucal.numerics.rk4.affine import calibrator
 from imucal.numerics.rk4.buckets import Bucket
-from imucal.numerics.rk4.hamilton import Vec, mul
+from imucal.numerics.rk4.hamilton import Quat, Vec, mul
+from imucal.numerics.rk4.lazy import SLAB, slab_ranges, slab_rows
 from imucal.numerics.rk4.product import product_rows
 from imucal.numerics.rk4.step import rk4_raw
 
-# Elements (rows x intervals) evaluated at once: large enough that numpy's per-call overhead
-# is small, small enough that the ~20 live temporaries stay in cache (measured in bench/).
-SLAB = 32768
+__all__ = ["SLAB", "integrate_buckets", "slab_steps"]
 
 
-def integrate_buckets(buckets: list[Bucket], n: int, samples: list[Vec],
+def slab_steps(w: Vec, dt: np.ndarray, dt2: np.ndarray, cal: Callable[[Vec], Vec] | None
+               ) -> Quat:
+    """The unnormalised RK4 steps (:func:`~.step.rk4_raw`) of a slab: raw samples ``w``
+    ((m + 1, K_b) per component) calibrated by ``cal`` ((rows, 1, K_b) per component in,
+    (rows, k, K_b) out; None: as they are), steps ``dt``, ``dt2`` (m, K_b); (m, k, K_b)."""
+    c = tuple(x[:, None, :] for x in w)
+    if cal is not None:
+        c = cal(c)
+    return rk4_raw(tuple(x[:-1] for x in c), tuple(x[1:] for x in c), dt[:, None, :],
+                   dt2[:, None, :])
+
+
+def integrate_buckets(buckets: list[Bucket], n: int, samples: list,
                       models: list[tuple] | Callable[[Vec], Vec] | None = None) -> np.ndarray:
     """Quaternions (k, n, 4), normalised, of the ``n`` intervals of ``buckets`` under each of k
     models.
 
-    ``samples`` are the raw rates of each bucket ((L + 1, K_b) per component); ``models`` a
-    list of ``(M, b)``, the calibrated rate being ``M (w - b)`` (M4), or ``None`` for the rates
-    as they are (k = 1), or a function calibrating a raw slab ((rows, 1, K_b) per component,
-    k = 1). Slab by slab of rows, each model's arithmetic is the same as alone.
+    ``samples`` are the raw rates of each bucket ((L + 1, K_b) per component, or a
+    :class:`~.lazy.LazyRows`); ``models`` a list of ``(M, b)``, the calibrated rate being
+    ``M (w - b)`` (M4), or ``None`` for the rates as they are (k = 1), or a function
+    calibrating a raw slab ((rows, 1, K_b) per component, k = 1). Slab by slab of rows, each
+    model's arithmetic is the same as alone.
     """
     k = 1 if models is None or callable(models) else len(models)
     out = np.empty((k, n, 4))
     out[:] = (1.0, 0.0, 0.0, 0.0)
     cal = models if models is None or callable(models) else calibrator(models)
-    for (idx, _, _, dt, dt2), w in zip(buckets, samples):
-        L, kb = dt.shape
-        # Slabs depend on the layout only, not on k: the reduction tree, and so the
-        # rounding, is the same for a model alone and among several.
-        rows = max(1, SLAB // max(kb, 1))
+    for bucket, w in zip(buckets, samples):
+        src = slab_rows(bucket, w)
         acc = None
-        for r0 in range(0, L, rows):
-            r1 = min(r0 + rows, L)
-            c = tuple(x[r0:r1 + 1][:, None, :] for x in w)  # a lazy bucket gathers here
-            if cal is not None:
-                c = cal(c)
-            a = tuple(x[:-1] for x in c)
-            b = tuple(x[1:] for x in c)
-            q = product_rows(rk4_raw(a, b, dt[r0:r1][:, None, :], dt2[r0:r1][:, None, :]))
+        for r0, r1 in slab_ranges(*bucket.dt.shape):
+            w_slab, dt, dt2, _ = src.slab(r0, r1)
+            q = product_rows(slab_steps(w_slab, dt, dt2, cal))
+            del w_slab, dt, dt2  # views of the block read: let it go when the next is read
             acc = q if acc is None else mul(acc, q)
-        out[:, idx] = np.stack(np.broadcast_arrays(*acc), axis=-1)
+        out[:, bucket.idx] = np.stack(np.broadcast_arrays(*acc), axis=-1)
     return out / np.linalg.norm(out, axis=-1, keepdims=True)

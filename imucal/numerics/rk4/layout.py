@@ -8,8 +8,8 @@ import numpy as np
 from imucal.numerics.rk4.buckets import lay_out, length_buckets
 from imucal.numerics.rk4.hamilton import Vec
 from imucal.numerics.rk4.integrate import integrate_buckets
-from imucal.numerics.rk4.lazy import lay_out_lazy, lazy_samples
-from imucal.numerics.rk4.variational import sensitivity
+from imucal.numerics.rk4.lazy import LazyRows, lay_out_lazy, lazy_rows
+from imucal.numerics.rk4.variational import Sensitivity, sensitivity
 
 
 class StepLayout:
@@ -21,11 +21,13 @@ class StepLayout:
     (L + 1, K_b): the last row is the end of the last step), which of those samples belong to
     the transition (``valid``), and every step's ``dt`` (L, K_b; 0 for padding) and ``dt^2``.
     With ``lazy``, a bucket keeps none of these arrays (:mod:`.lazy`): ``dt`` and ``dt2`` and
-    :meth:`lazy_samples` are gathered a slab of rows at a time when read.
+    :meth:`lazy_samples` are gathered a slab of rows at a time when read, and ``t`` is only
+    read by gathers (it may be an array kept on disk).
     """
 
-    def __init__(self, t: np.ndarray, starts: np.ndarray, ends: np.ndarray, lazy: bool = False):
-        t = np.asarray(t, float)
+    def __init__(self, t, starts: np.ndarray, ends: np.ndarray, lazy: bool = False):
+        if not lazy:
+            t = np.asarray(t, float)
         self.starts = np.asarray(starts, np.int64)
         self.ends = np.asarray(ends, np.int64)
         self.n = len(self.starts)
@@ -42,22 +44,22 @@ class StepLayout:
         return [tuple(np.where(valid, c[i0], 0.0) for c in comps)
                 for _, i0, valid, _, _ in self.buckets]
 
-    def lazy_samples(self, comps: list[np.ndarray]) -> list[Vec]:
-        """:meth:`gather`'s samples of a lazy layout, gathered a slab at a time when read
-        (``comps`` are kept as they are: pass views of the session's columns)."""
-        return [lazy_samples(b, comps, self.last) for b in self.buckets]
+    def lazy_samples(self, x) -> list[LazyRows]:
+        """:meth:`gather`'s samples of a lazy layout, read from ``x`` (N, C), one row per
+        sample, a slab at a time when integrated (``x`` is kept as it is and only read by
+        gathers of rows)."""
+        return [lazy_rows(b, x) for b in self.buckets]
 
-    def integrate(self, samples: list[Vec], models: list[tuple] | None = None) -> np.ndarray:
+    def integrate(self, samples: list, models: list[tuple] | None = None) -> np.ndarray:
         """Quaternions (k, K, 4), normalised, of every transition under each of k models
         ``(M, b)`` (``w = M (w - b)``, M4; ``None``: the rates as they are), from
         :meth:`gather`'s ``samples`` (:func:`~imucal.numerics.rk4.integrate.integrate_buckets`).
         """
         return integrate_buckets(self.buckets, self.n, samples, models)
 
-    def sensitivity(self, samples: list[Vec], M: np.ndarray, b: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
-        """Every transition's rotation (n, 4) and ``S`` (n, 3, 3, 4), what a fit's Jacobian
-        needs for the model ``w = M (w_raw - b)`` (M4)
+    def sensitivity(self, samples: list, M: np.ndarray, b: np.ndarray) -> Sensitivity:
+        """Every transition's rotation (n, 4) and ``S`` (n, 3, 3, 4), what a fit's residuals
+        and Jacobian need for the model ``w = M (w_raw - b)`` (M4)
         (:func:`~imucal.numerics.rk4.variational.sensitivity`)."""
         return sensitivity(self.buckets, self.n, samples, M, b)
 

@@ -10,23 +10,36 @@ Jacobian comes from ``S = integral of R(t) d(t)^T dt`` by small contractions.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from imucal.numerics.rk4.affine import calibrator
 from imucal.numerics.rk4.buckets import Bucket
 from imucal.numerics.rk4.hamilton import Quat, Vec, mul
-from imucal.numerics.rk4.integrate import SLAB
-from imucal.numerics.rk4.prefix_scan import prefix_rows
+from imucal.numerics.rk4.integrate import slab_steps
+from imucal.numerics.rk4.lazy import Slab, slab_ranges, slab_rows
+from imucal.numerics.rk4.prefix_scan import prefix_and_product
 from imucal.numerics.rk4.rotation_matrix import matrix_rows
-from imucal.numerics.rk4.step import rk4_raw
 
 
-def sensitivity(buckets: list[Bucket], n: int, samples: list[Vec], M: np.ndarray, b: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Every interval's rotation ``q`` (n, 4), normalised, and ``S`` (n, 3, 3, 4),
-    ``S[k, :, i, j] = integral of R(t)[:, i] d_j(t) dt`` over interval k, with ``R(t)`` the
-    rotation from the interval's start to ``t`` and ``d = (w_raw - b, 1)``, for the model
-    ``w = M (w_raw - b)`` (M4); ``samples`` are the raw rates of each bucket.
+class Sensitivity(NamedTuple):
+    """One pass over the steps under a model: ``q`` (n, 4) every interval's rotation, the same
+    to the bit as :func:`~.integrate.integrate_buckets` gives; ``S`` (n, 3, 3, 4) its
+    sensitivity; ``q_scan`` (n, 4) the rotation as the prefix scan behind ``S`` composes it
+    (the same to rounding)."""
+
+    q: np.ndarray
+    S: np.ndarray
+    q_scan: np.ndarray
+
+
+def sensitivity(buckets: list[Bucket], n: int, samples: list, M: np.ndarray, b: np.ndarray
+                ) -> Sensitivity:
+    """Every interval's rotation and ``S``, ``S[k, :, i, j] = integral of R(t)[:, i] d_j(t)
+    dt`` over interval k, with ``R(t)`` the rotation from the interval's start to ``t`` and
+    ``d = (w_raw - b, 1)``, for the model ``w = M (w_raw - b)`` (M4); ``samples`` are the raw
+    rates of each bucket.
 
     One prefix scan of the steps (about two evaluations of the cost) replaces the 9 cost
     evaluations of a finite-difference Jacobian. The integral is the trapezoidal rule on the
@@ -36,16 +49,16 @@ def sensitivity(buckets: list[Bucket], n: int, samples: list[Vec], M: np.ndarray
     """
     cal = calibrator([(M, b)])
     b = np.asarray(b, float).tolist()
-    q_out = np.empty((n, 4))
+    q_out = np.empty((2, n, 4))
     q_out[:] = (1.0, 0.0, 0.0, 0.0)
     S_out = np.zeros((n, 9, 4))
-    for (idx, _, _, dt, dt2), w in zip(buckets, samples):
-        carry, S = _bucket_sensitivity(w, b, cal, dt, dt2)
-        if carry is not None:
-            q_out[idx] = np.stack(carry, axis=-1)
-        S_out[idx] = S
+    for bucket, w in zip(buckets, samples):
+        q, scan, S = _bucket_sensitivity(slab_rows(bucket, w), bucket.dt.shape, b, cal)
+        q_out[0, bucket.idx] = np.stack(np.broadcast_arrays(*q), axis=-1)
+        q_out[1, bucket.idx] = np.stack(scan, axis=-1)
+        S_out[bucket.idx] = S
     q_out /= np.linalg.norm(q_out, axis=-1, keepdims=True)
-    return q_out, S_out.reshape(n, 3, 3, 4)
+    return Sensitivity(q_out[0], S_out.reshape(n, 3, 3, 4), q_out[1])
 
 
 def trapezoid_weights(w: Vec, b: list[float], dt: np.ndarray, r0: int = 0,
@@ -60,44 +73,79 @@ def trapezoid_weights(w: Vec, b: list[float], dt: np.ndarray, r0: int = 0,
     c[:max(min(r1, L) - r0, 0)] += 0.5 * dt[r0:r1]  # the step starting at the sample
     lo = max(r0, 1)
     c[lo - r0:] += 0.5 * dt[lo - 1:r1 - 1]  # the step ending at it
-    weights = np.empty((kb, r1 - r0, 4))
+    return _weighted(tuple(x[r0:r1] for x in w), b, c)
+
+
+def _weighted(w: Vec, b: list[float], c: np.ndarray) -> np.ndarray:
+    """``(w - b, 1)`` times the weights ``c`` (rows, K_b), transition-major (K_b, rows, 4)."""
+    weights = np.empty((c.shape[1], c.shape[0], 4))
     weights[:, :, 3] = c.T
     for j in range(3):
-        weights[:, :, j] = ((w[j][r0:r1] - b[j]) * c).T
+        weights[:, :, j] = ((w[j] - b[j]) * c).T
     return weights
 
 
-def _bucket_sensitivity(w: Vec, b: list[float], cal, dt: np.ndarray, dt2: np.ndarray
-                        ) -> tuple[Quat | None, np.ndarray]:
-    """The end rotation (None without steps) and ``S`` (K_b, 9, 4) of one bucket from its raw
-    rates ``w`` ((L + 1, K_b) per component), a slab of rows at a time: each slab's
-    orientations are a prefix scan relative to the slab's start, and the rotation carried in
-    from the slabs before is applied to the slab's sum once. The calibrated rates and the
-    weights are made a slab at a time too (no temporaries the size of the bucket)."""
-    L, kb = dt.shape
-    # The first sample: R = I, so S[k, 3 i + i, j] gets its weighted d_j.
+def _slab_weights(s: Slab, b: list[float]) -> np.ndarray:
+    """:func:`trapezoid_weights` of a slab's samples after its first (``r0 + 1 .. r1``): half
+    the step starting at each (the next slab's first for the last) and half the one ending
+    at it, added in that order (the same values)."""
+    c = np.zeros(s.dt.shape)
+    c[:-1] += 0.5 * s.dt[1:]
+    c[-1] += 0.5 * s.dt_next
+    c += 0.5 * s.dt
+    return _weighted(tuple(x[1:] for x in s.w), b, c)
+
+
+def _bucket_sensitivity(src, shape: tuple[int, int], b: list[float], cal
+                        ) -> tuple[Quat, Quat, np.ndarray]:
+    """The end rotation, by ordered products (:func:`.integrate.integrate_buckets`'s) and by
+    the prefix scan, and ``S`` (K_b, 9, 4) of one bucket of ``shape`` (L, K_b) whose slabs
+    ``src`` reads, a slab of rows at a time: each slab's orientations are a prefix scan
+    relative to the slab's start, and the rotation carried in from the slabs before is applied
+    to the slab's sum once (no temporaries the size of the bucket)."""
+    L, kb = shape
     S = np.zeros((kb, 9, 4))
-    first = trapezoid_weights(w, b, dt, 0, 1)
-    for i in range(3):
-        S[:, 4 * i, :] = first[:, 0, :]
-    carry = None
-    rows = max(1, SLAB // max(kb, 1))
-    R = np.empty((kb, 9, min(rows, L)))
-    for r0 in range(0, L, rows):
-        r1 = min(r0 + rows, L)
-        om = tuple(x[:, 0, :] for x in cal(tuple(x[r0:r1 + 1][:, None, :] for x in w)))
-        P = rk4_raw(tuple(x[:-1] for x in om), tuple(x[1:] for x in om), dt[r0:r1], dt2[r0:r1])
-        Q = prefix_rows(P)  # orientation at samples r0 + 1 .. r1 relative to r0
-        Rs = R[:, :, :r1 - r0]
-        matrix_rows(Q, Rs.transpose(2, 1, 0))
-        part = np.matmul(Rs, trapezoid_weights(w, b, dt, r0 + 1, r1 + 1))  # (kb, 9, 4)
+    acc = carry = None
+    for r0, r1 in slab_ranges(L, kb):
+        s = src.slab(r0, r1, ahead=True)
+        if r0 == 0:  # the first sample: R = I, so S[k, 3 i + i, j] gets its weighted d_j
+            first = _weighted(tuple(x[:1] for x in s.w), b, np.zeros((1, kb)) + 0.5 * s.dt[:1])
+            for i in range(3):
+                S[:, 4 * i, :] = first[:, 0, :]
+        # orientations at r0 + 1 .. r1 from r0, and the slab's product as integrated alone
+        Q, q = prefix_and_product(tuple(x[:, 0, :] for x in slab_steps(s.w, s.dt, s.dt2, cal)))
+        acc = q if acc is None else mul(acc, q)
+        part = _slab_sum(Q, _slab_weights(s, b))
+        end = tuple(x[-1].copy() for x in Q)  # the slab's rotation; the rest of Q is let go
+        del Q
         if carry is None:
-            carry = tuple(x[-1] for x in Q)
+            carry = end
         else:
             part = _rotated(carry, part)
-            carry = mul(carry, tuple(x[-1] for x in Q))
+            carry = mul(carry, end)
         S += part
-    return carry, S
+        del s  # views of the block read: let it go when the next is read
+    return acc, carry, S
+
+
+# Column chunks of a slab whose rotation matrices are made at once (in two layouts): a quarter
+# slab each, so that they take 1.2 MB, not 4.7 MB (at 6 h).
+R_CHUNKS = 4
+
+
+def _slab_sum(Q: Quat, W: np.ndarray) -> np.ndarray:
+    """``sum over the slab's samples of R(Q) W`` per interval, (K_b, 9, 4), one matrix product
+    per interval. The matrices are written time-major (contiguous), then laid out
+    interval-major by one copy (scattered writes into that layout cost twice as much at 6 h),
+    a few columns at a time."""
+    m, kb = Q[0].shape
+    part = np.empty((kb, 9, 4))
+    step = -(-kb // R_CHUNKS)
+    for c0 in range(0, kb, step):
+        c1 = min(c0 + step, kb)
+        R = matrix_rows(tuple(x[:, c0:c1] for x in Q), np.empty((m, 9, c1 - c0)))
+        np.matmul(np.ascontiguousarray(R.transpose(2, 1, 0)), W[c0:c1], out=part[c0:c1])
+    return part
 
 
 def _rotated(carry: Quat, part: np.ndarray) -> np.ndarray:

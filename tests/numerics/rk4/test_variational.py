@@ -35,7 +35,7 @@ def test_S_is_the_trapezoid_integral_of_R_times_d(model, sequential):
     starts, ends = np.array([0, 100, 250]), np.array([90, 300, 250])
     M, b = model
     buckets, samples = _setup(t, w, starts, ends)
-    q, S = sensitivity(buckets, 3, samples, M, b)
+    q, S, _ = sensitivity(buckets, 3, samples, M, b)
     for k, (s, e) in enumerate(zip(starts, ends)):
         Q = sequential((w[s:e + 1] - b) @ M.T, t[s:e + 1])  # orientation at every sample
         R = quat.to_matrix(Q)
@@ -73,7 +73,7 @@ def test_the_predicted_rotation_change_matches_finite_differences(model, long):
     ends = np.array([400, 1100, 2900] + ([n] if long else []))
     M, b = model
     buckets, samples = _setup(t, w, starts, ends)
-    q, S = sensitivity(buckets, len(starts), samples, M, b)
+    q, S, _ = sensitivity(buckets, len(starts), samples, M, b)
     rng = np.random.default_rng(3)
     for _ in range(3):
         dM, db = rng.normal(size=(3, 3)), rng.normal(size=3)
@@ -84,6 +84,22 @@ def test_the_predicted_rotation_change_matches_finite_differences(model, long):
         scale = np.linalg.norm(ref, axis=1, keepdims=True)
         assert np.all(np.abs(got - ref) <= 1e-3 * scale + 1e-9)
         assert np.all(scale > 1e-2)  # a change that moves something
+
+
+@pytest.mark.parametrize("long", [False, True])
+def test_the_rotation_is_the_integrations_to_the_bit_and_the_scans_to_rounding(model, long):
+    # one pass makes a fit's residuals and its Jacobian: its rotation must be the one the
+    # integration alone gives, whatever the slabs (long: an interval over several)
+    n = SLAB + 3000 if long else 3000
+    t, w = _recording(n + 1, seed=4)
+    starts = np.array([0, 500, 1200, 7] + ([5] if long else []))
+    ends = np.array([400, 1100, 2900, 7] + ([n] if long else []))
+    M, b = model
+    buckets, samples = _setup(t, w, starts, ends)
+    q, _, q_scan = sensitivity(buckets, len(starts), samples, M, b)
+    np.testing.assert_array_equal(q, integrate_buckets(buckets, len(starts), samples,
+                                                       [(M, b)])[0])
+    np.testing.assert_allclose(q_scan, q, rtol=0, atol=1e-12)
 
 
 def test_trapezoid_weights_sum_to_the_duration_and_carry_d():
