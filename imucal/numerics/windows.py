@@ -120,44 +120,53 @@ def runs_of_true(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2)
 
 
-def block_means(x: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-    """Mean of x over each [start, end) block, in one pass (no loop over blocks)."""
+def block_means(x, blocks: np.ndarray) -> np.ndarray:
+    """Mean of x over each [start, end) block, in one pass (no loop over blocks), read through
+    row slices (:func:`segment_sums`)."""
     if len(blocks) == 0:
         return np.zeros((0, x.shape[1]))
     sums = segment_sums(x, blocks[:, 0], blocks[:, 1])
     return sums / np.maximum(blocks[:, 1] - blocks[:, 0], 1)[:, None]
 
 
-def segment_sums(x: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+def segment_sums(x, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """Sums of the rows of ``x`` (N, k) over the ranges ``[starts[i], ends[i])``, 0 for an
     empty range.
 
-    For sorted, non-overlapping ranges (static blocks, or the chunks of each) this is one
-    ``np.add.reduceat`` pass with no temporary the size of ``x``; each sum is accumulated
-    over its own range only, so it keeps full precision on long recordings (a difference of
-    two cumulative sums loses the digits of the running total). Other ranges fall back to
-    cumulative sums.
+    For sorted, non-overlapping ranges (static blocks, or the chunks of each) this is
+    ``np.add.reduceat`` over slices of ``x`` spanning about :data:`CHUNK_ROWS` rows (a longer
+    range alone): no temporary the size of ``x``, which is read through row slices only. Each
+    sum is accumulated over its own range only, as on the whole array, so it keeps full
+    precision on long recordings (a difference of two cumulative sums loses the digits of the
+    running total) and is the same to the bit. Other ranges fall back to cumulative sums over
+    the whole array (in memory).
     """
-    x = np.asarray(x)
     starts = np.asarray(starts, np.int64)
     ends = np.asarray(ends, np.int64)
     n = len(x)
-    out = np.zeros((len(starts),) + x.shape[1:])
+    out = np.zeros((len(starts),) + tuple(x.shape[1:]))
     keep = ends > starts
     s, e = starts[keep], ends[keep]
     if len(s) == 0:
         return out
     if s[0] < 0 or e[-1] > n or np.any(e[:-1] > s[1:]):
+        x = np.asarray(x)
         xc = x - x[0]
         cs = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(xc, axis=0)])
         out[keep] = cs[e] - cs[s] + (e - s).reshape((-1,) + (1,) * (x.ndim - 1)) * x[0]
         return out
-    idx = np.empty(2 * len(s), np.int64)
-    idx[0::2] = s
-    idx[1::2] = e
-    if idx[-1] == n:  # the last range runs to the end: reduceat's last segment does
-        idx = idx[:-1]
-    out[keep] = np.add.reduceat(x, idx, axis=0)[0::2]
+    where = np.flatnonzero(keep)
+    i = 0
+    while i < len(s):  # runs of ranges spanning about CHUNK_ROWS rows
+        j = i + max(1, int(np.searchsorted(e[i:], s[i] + CHUNK_ROWS, side="right")))
+        a, b = int(s[i]), int(e[j - 1])
+        idx = np.empty(2 * (j - i), np.int64)
+        idx[0::2] = s[i:j] - a
+        idx[1::2] = e[i:j] - a
+        if idx[-1] == b - a:  # the last range runs to the slice's end: reduceat's last does
+            idx = idx[:-1]
+        out[where[i:j]] = np.add.reduceat(np.asarray(x[a:b]), idx, axis=0)[0::2]
+        i = j
     return out
 
 
