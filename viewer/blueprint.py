@@ -138,9 +138,11 @@ def _signals(result: Result | None, gyro: bool) -> rrb.Vertical:
                              P.GYRO_CALIBRATED)))
     else:
         grid = rrb.Vertical(*acc)
-    detector_range = None if result is None else robust_range(np.append(
-        np.log10(result.detection.statistic[result.detection.statistic > 0]),
-        np.log10(result.detection.threshold)), q=0.0)
+    detector_range = None
+    if result is not None:  # M1 is not kept in the result: computed again, a span at a time
+        stat = result.detection.statistic(result.session.acc)
+        detector_range = robust_range(np.append(np.log10(stat[stat > 0]),
+                                                np.log10(result.detection.threshold)), q=0.0)
     detector = _ts("Static detector (M1): log10 statistic (blue) and threshold (red)",
                    P.DETECTOR_STATISTIC, P.DETECTOR_THRESHOLD, y_range=detector_range)
     return _with_lanes(grid, detector, shares=[1.8, 1.0], name="Signals")

@@ -84,8 +84,8 @@ def _send(rec: rr.RecordingStream, path: str, t: np.ndarray, v: np.ndarray, d: D
 
 def log_detector(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
     det, t = result.detection, result.session.t_acc
-    rows[P.DETECTOR_STATISTIC] = _send_axes(rec, P.DETECTOR_STATISTIC, t,
-                                            log10_axis(det.statistic))
+    stat = det.statistic(result.session.acc)  # not kept in the result: computed again
+    rows[P.DETECTOR_STATISTIC] = _send_axes(rec, P.DETECTOR_STATISTIC, t, log10_axis(stat))
     style_lines(rec, P.DETECTOR_STATISTIC, ["log10 s2 (M1)"], [0x4E79A7FF])
     rows[P.DETECTOR_THRESHOLD] = send_scalars(rec, P.DETECTOR_THRESHOLD, [t[0], t[-1]],
                                               np.full(2, log10_axis(det.threshold)))

@@ -1,0 +1,288 @@
+"""The tuner's passes over the statistic (method.md §1, M1), a span at a time (issue 12).
+
+* :func:`window_pass`: what one window's M1 tells the scan of thresholds, in one pass: its
+  largest value in each bin of a few samples, a strided sample for the quiet level, its values
+  at the outliers, and how many samples lie below each threshold tried.
+* :func:`still_runs`: where ``s2 < threshold`` and, with a local factor, where each such
+  stretch stays under that factor times its own median; on an array (the scan's bins) or
+  streamed from the spans of M1 at full resolution (:func:`streamed_still_runs`).
+
+The streamed runs are those of the array formula to the bit: each run's median is taken from
+the same sample of its values (every ``step``-th, ``step`` from the total still length the
+window pass counted), and checked against the array formula's own sort of all of them at the
+end; a run whose M1 had to be let go before its median was known (longer than
+:data:`OPEN_LIMIT`), or whose median that check corrects, is redone over its spans alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from imucal.numerics.windows import CHUNK_ROWS, runs_of_true
+from imucal.stages.detect_stat import SPAN, Statistic
+
+MEDIAN_VALUES = 200_000  # values of M1 a run median is taken from, at most, over all runs
+OPEN_LIMIT = 4 * SPAN  # M1 values kept for a still run not yet ended (longer: redone)
+QUIET_VALUES = 500_000  # values of M1 the quiet level is taken from, about
+
+
+@dataclass(frozen=True)
+class WindowPass:
+    """One window's M1 as the scan needs it (the values themselves are not kept)."""
+
+    window: int
+    per: int  # samples per bin
+    binmax: np.ndarray  # (ceil(n / per),) the largest M1 of each bin; the last partial one inf
+    sample: np.ndarray  # M1 at every max(1, n // QUIET_VALUES)-th sample
+    at_outliers: np.ndarray  # M1 at the outlier samples
+    thresholds: np.ndarray | None  # ascending; None: unknown during the pass
+    below: np.ndarray | None  # per threshold: samples, outliers aside, where M1 < it
+
+    def still_samples(self, threshold: float) -> int | None:
+        """Samples (outliers aside) where M1 < ``threshold``, if it was counted."""
+        if self.thresholds is None:
+            return None
+        hit = np.flatnonzero(self.thresholds == threshold)
+        return int(self.below[hit[0]]) if len(hit) else None
+
+
+def window_pass(stat: Statistic, per: int, outliers: np.ndarray,
+                thresholds: np.ndarray | None = None) -> WindowPass:
+    """One pass over M1 (see the module's docstring)."""
+    n = stat.n
+    stride = max(1, n // QUIET_VALUES)
+    nb = -(-n // per)
+    binmax = np.empty(nb)
+    carry, held = -np.inf, 0  # the largest value of the bin still open, and its samples so far
+    sample, at_out = [], np.empty(len(outliers))
+    codes = None if thresholds is None else np.zeros(len(thresholds) + 1, np.int64)
+    for o0, o1, s in stat.spans():
+        p, length = 0, o1 - o0
+        if held:  # the bin the last span left open
+            p = min(per - held, length)
+            carry = np.maximum(carry, s[:p].max())
+            held += p
+            if held == per:
+                binmax[(o0 + p - 1) // per], carry, held = carry, -np.inf, 0
+        q = (length - p) // per
+        if q:
+            first = (o0 + p) // per
+            binmax[first:first + q] = s[p:p + q * per].reshape(q, per).max(axis=1)
+            p += q * per
+        if p < length:
+            carry, held = s[p:].max(), length - p
+        sample.append(s[(-o0) % stride::stride].copy())
+        i0, i1 = np.searchsorted(outliers, [o0, o1])
+        at_out[i0:i1] = s[outliers[i0:i1] - o0]
+        if codes is not None:  # M1 < thresholds[j] exactly where its code is at most j
+            codes += np.bincount(np.searchsorted(thresholds, s, side="right"),
+                                 minlength=len(codes))
+    if held:  # a partial last bin is never still
+        binmax[nb - 1] = np.maximum(carry, np.inf)
+    below = None
+    if codes is not None:
+        below = np.cumsum(codes)[:-1] - np.array([np.count_nonzero(at_out < thr)
+                                                   for thr in thresholds])
+    return WindowPass(window=stat.window, per=per, binmax=binmax, sample=np.concatenate(sample),
+                      at_outliers=at_out, thresholds=thresholds, below=below)
+
+
+def values_at(stat: Statistic, idx: np.ndarray) -> np.ndarray:
+    """M1 at the sorted sample indices ``idx``: only the spans holding one are computed."""
+    idx = np.asarray(idx, dtype=np.int64)
+    out = np.empty(len(idx))
+
+    def wanted(o0: int, o1: int) -> bool:
+        i0, i1 = np.searchsorted(idx, [o0, o1])
+        return bool(i1 > i0)
+
+    if len(idx):
+        for o0, o1, s in stat.spans(only=wanted):
+            i0, i1 = np.searchsorted(idx, [o0, o1])
+            out[i0:i1] = s[idx[i0:i1] - o0]
+    return out
+
+
+def still_runs(values: np.ndarray, threshold: float, local: float | None,
+               outliers: np.ndarray, per: int = 1) -> np.ndarray:
+    """[start, end) runs (in units of ``per`` samples) where ``values < threshold`` and, with
+    ``local``, where each such stretch's values stay under ``local`` times their median.
+    Outlier samples end a run."""
+    mask = values < threshold
+    if len(outliers):
+        mask[outliers // per] = False
+    runs = runs_of_true(mask)
+    if local is None or len(runs) == 0:
+        return runs
+    median = run_medians(values, runs)
+    lengths = runs[:, 1] - runs[:, 0]
+    ends = np.cumsum(lengths)
+    i = 0
+    while i < len(runs):  # runs of runs of about CHUNK_ROWS samples: small index arrays
+        j = max(i + 1, int(np.searchsorted(ends, ends[i] - lengths[i] + CHUNK_ROWS, "right")))
+        idx = run_indices(runs[i:j])
+        mask[idx] = values[idx] < local * np.repeat(median[i:j], lengths[i:j])
+        i = j
+    return runs_of_true(mask)
+
+
+def run_indices(runs: np.ndarray, step: int = 1) -> np.ndarray:
+    """Every ``step``-th index of each [start, end) run, concatenated in order."""
+    lengths = -(-(runs[:, 1] - runs[:, 0]) // step)
+    offsets = np.repeat(runs[:, 0] - (np.cumsum(lengths) - lengths) * step, lengths)
+    return offsets + np.arange(int(lengths.sum())) * step
+
+
+def median_step(runs: np.ndarray) -> int:
+    """Every how many values a run's median is taken from (M1 is smooth over a window: every
+    step-th value tells its median as well)."""
+    return max(1, int((runs[:, 1] - runs[:, 0]).sum()) // MEDIAN_VALUES)
+
+
+def run_medians(values: np.ndarray, runs: np.ndarray) -> np.ndarray:
+    """The median of ``values`` over each run, from every :func:`median_step`-th of them."""
+    step = median_step(runs)
+    return medians_of(values[run_indices(runs, step)], -(-(runs[:, 1] - runs[:, 0]) // step))
+
+
+def medians_of(v: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The (lower) median of each of the consecutive groups of ``lengths`` values of ``v``.
+
+    One sort by group, then by value: the group's number plus its log value squeezed into
+    [0, 0.5) (an argsort of floats is several times faster than a lexsort of two keys)."""
+    logv = np.log(np.maximum(v, np.finfo(float).tiny))
+    lo, hi = float(logv.min()), float(logv.max())
+    key = (logv - lo) * (0.5 / max(hi - lo, 1e-300))
+    key += np.repeat(np.arange(len(lengths), dtype=float), lengths)
+    order = np.argsort(key)
+    first = np.cumsum(lengths) - lengths
+    return v[order[first + (lengths - 1) // 2]]
+
+
+def streamed_still_runs(stat: Statistic, threshold: float, local: float | None,
+                        outliers: np.ndarray, total: int | None = None) -> np.ndarray:
+    """:func:`still_runs` of M1 at every sample, from its spans: ``total`` is the number of
+    samples, outliers aside, where M1 < ``threshold`` (:meth:`WindowPass.still_samples`;
+    None: counted in a pass of its own first)."""
+    if local is None:
+        return _plain_runs(stat, threshold, outliers)
+    if total is None:
+        total = int(np.sum(np.diff(_plain_runs(stat, threshold, outliers), axis=1)))
+    found = _LocalRuns(threshold, local, outliers, max(1, total // MEDIAN_VALUES)).scan(stat)
+    if found is None:  # the count was not the runs' (it cannot be): redo with theirs
+        runs = _plain_runs(stat, threshold, outliers)
+        return streamed_still_runs(stat, threshold, local, outliers,
+                                   int(np.sum(runs[:, 1] - runs[:, 0])))
+    return found
+
+
+def _plain_runs(stat: Statistic, threshold: float, outliers: np.ndarray) -> np.ndarray:
+    """Runs of ``M1 < threshold`` with the outliers ending them, joined across spans."""
+    parts = [np.zeros((0, 2), np.int64)]
+    for o0, _, s in stat.spans():
+        r = _span_runs(s, o0, threshold, outliers)
+        if len(r) and len(parts[-1]) and parts[-1][-1, 1] == r[0, 0]:
+            parts[-1] = parts[-1].copy()
+            parts[-1][-1, 1] = r[0, 1]
+            r = r[1:]
+        parts.append(r)
+    return np.concatenate(parts).astype(np.int64).reshape(-1, 2)
+
+
+def _span_runs(s: np.ndarray, o0: int, threshold: float, outliers: np.ndarray) -> np.ndarray:
+    mask = s < threshold
+    i0, i1 = np.searchsorted(outliers, [o0, o0 + len(s)])
+    mask[outliers[i0:i1] - o0] = False
+    return runs_of_true(mask).astype(np.int64) + o0
+
+
+class _LocalRuns:
+    """The streamed runs with local ends: each run's sample of values gathered as its spans
+    go by, its median taken when it ends and its M1 compared with it then (while its spans'
+    values are held, up to OPEN_LIMIT); the medians checked against :func:`medians_of` at the
+    end, and the runs it corrects, or whose values were let go, redone span by span."""
+
+    def __init__(self, threshold: float, local: float, outliers: np.ndarray, step: int):
+        self.threshold, self.local, self.outliers, self.step = threshold, local, outliers, step
+        self.starts: list[int] = []
+        self.ends: list[int] = []
+        self.values: list[np.ndarray] = []  # each run's sample, in order
+        self.medians: list[float] = []
+        self.pieces: list[np.ndarray | None] = []  # each run's refined runs; None: redo
+        self.open: dict | None = None
+
+    def scan(self, stat: Statistic) -> np.ndarray | None:
+        for o0, o1, s in stat.spans():
+            runs = _span_runs(s, o0, self.threshold, self.outliers)
+            for a, b in runs.tolist():
+                if self.open is not None and not (a == o0 and self.open["end"] == o0):
+                    self._close()
+                if self.open is None:
+                    self.open = {"start": a, "end": a, "values": [], "held": [], "n": 0}
+                self._extend(s, o0, a, b)
+                if b < o1:
+                    self._close()
+            if self.open is not None and self.open["end"] < o1:
+                self._close()
+        if self.open is not None:
+            self._close()
+        starts, ends = np.asarray(self.starts, np.int64), np.asarray(self.ends, np.int64)
+        if len(starts) == 0:
+            return np.zeros((0, 2), np.int64)
+        if max(1, int(np.sum(ends - starts)) // MEDIAN_VALUES) != self.step:
+            return None
+        lengths = -(-(ends - starts) // self.step)
+        exact = medians_of(np.concatenate(self.values), lengths)
+        redo = [i for i, p in enumerate(self.pieces) if p is None or exact[i] != self.medians[i]]
+        if redo:
+            self._redo(stat, starts, ends, exact, np.asarray(redo))
+        return np.concatenate(self.pieces).astype(np.int64).reshape(-1, 2)
+
+    def _extend(self, s: np.ndarray, o0: int, a: int, b: int) -> None:
+        run, step = self.open, self.step
+        first = run["start"] + -(-(a - run["start"]) // step) * step
+        run["values"].append(s[first - o0:b - o0:step].copy())
+        if run["held"] is not None:
+            run["held"].append(s[a - o0:b - o0])
+            run["n"] += b - a
+            if run["n"] > OPEN_LIMIT:
+                run["held"] = None  # let go: redone once its median is known
+        run["end"] = b
+
+    def _close(self) -> None:
+        run, self.open = self.open, None
+        v = np.concatenate(run["values"])
+        median = np.partition(v, (len(v) - 1) // 2)[(len(v) - 1) // 2]
+        pieces = None
+        if run["held"] is not None:
+            still = np.concatenate(run["held"]) < self.local * median
+            pieces = runs_of_true(still).astype(np.int64) + run["start"]
+        self.starts.append(run["start"])
+        self.ends.append(run["end"])
+        self.values.append(v)
+        self.medians.append(median)
+        self.pieces.append(pieces)
+
+    def _redo(self, stat: Statistic, starts: np.ndarray, ends: np.ndarray, medians: np.ndarray,
+              redo: np.ndarray) -> None:
+        """The runs ``redo`` compared with their exact medians, over the spans they cover."""
+        rs, re = starts[redo], ends[redo]
+
+        def wanted(o0: int, o1: int) -> bool:
+            return bool(np.any((rs < o1) & (re > o0)))
+
+        found: dict[int, list[np.ndarray]] = {int(i): [] for i in redo}
+        for o0, o1, s in stat.spans(only=wanted):
+            for i in redo[(rs < o1) & (re > o0)].tolist():
+                a, b = max(starts[i], o0), min(ends[i], o1)
+                r = runs_of_true(s[a - o0:b - o0] < self.local * medians[i]).astype(np.int64) + a
+                parts = found[i]
+                if len(r) and parts and len(parts[-1]) and parts[-1][-1, 1] == r[0, 0]:
+                    parts[-1] = parts[-1].copy()
+                    parts[-1][-1, 1] = r[0, 1]
+                    r = r[1:]
+                parts.append(r)
+        for i, parts in found.items():
+            self.pieces[i] = np.concatenate([np.zeros((0, 2), np.int64), *parts])
