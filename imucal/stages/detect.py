@@ -104,6 +104,7 @@ INIT_MAX_F = 30.0
 # violent one, bends over several samples and fails the second test.
 SPIKE_NOISE = 50.0
 SPIKE_ISOLATION = 5.0
+GATHER = 1 << 15  # sample indices gathered at once (with their neighbours)
 
 
 def wander_ratio(x, parts: int = INIT_PARTS) -> float:
@@ -177,7 +178,8 @@ def isolated_outliers(x) -> np.ndarray:
         return np.zeros(0, np.int64)
     k = int(x.shape[1])
     sampled = np.arange(0, n, max(1, n // 200_000))
-    typical = _spike_sizes(x, sampled)
+    typical = np.concatenate([_spike_sizes(x, sampled[i:i + GATHER])
+                              for i in range(0, len(sampled), GATHER)])
     limit = np.empty(k)
     for j in range(k):
         s = 1.4826 * float(np.median(typical[:, j]))

@@ -57,7 +57,7 @@ def window_pass(stat: Statistic, per: int, outliers: np.ndarray,
     binmax = np.empty(nb)
     carry, held = -np.inf, 0  # the largest value of the bin still open, and its samples so far
     sample, at_out = [], np.empty(len(outliers))
-    codes = None if thresholds is None else np.zeros(len(thresholds) + 1, np.int64)
+    counts = None if thresholds is None else np.zeros(len(thresholds), np.int64)
     for o0, o1, s in stat.spans():
         p, length = 0, o1 - o0
         if held:  # the bin the last span left open
@@ -76,15 +76,13 @@ def window_pass(stat: Statistic, per: int, outliers: np.ndarray,
         sample.append(s[(-o0) % stride::stride].copy())
         i0, i1 = np.searchsorted(outliers, [o0, o1])
         at_out[i0:i1] = s[outliers[i0:i1] - o0]
-        if codes is not None:  # M1 < thresholds[j] exactly where its code is at most j
-            codes += np.bincount(np.searchsorted(thresholds, s, side="right"),
-                                 minlength=len(codes))
+        if counts is not None:  # one vectorised count per threshold beats a search per value
+            counts += [np.count_nonzero(s < thr) for thr in thresholds]
     if held:  # a partial last bin is never still
         binmax[nb - 1] = np.maximum(carry, np.inf)
     below = None
-    if codes is not None:
-        below = np.cumsum(codes)[:-1] - np.array([np.count_nonzero(at_out < thr)
-                                                   for thr in thresholds])
+    if counts is not None:
+        below = counts - np.array([np.count_nonzero(at_out < thr) for thr in thresholds])
     return WindowPass(window=stat.window, per=per, binmax=binmax, sample=np.concatenate(sample),
                       at_outliers=at_out, thresholds=thresholds, below=below)
 
@@ -180,15 +178,18 @@ def streamed_still_runs(stat: Statistic, threshold: float, local: float | None,
 
 def _plain_runs(stat: Statistic, threshold: float, outliers: np.ndarray) -> np.ndarray:
     """Runs of ``M1 < threshold`` with the outliers ending them, joined across spans."""
-    parts = [np.zeros((0, 2), np.int64)]
-    for o0, _, s in stat.spans():
-        r = _span_runs(s, o0, threshold, outliers)
-        if len(r) and len(parts[-1]) and parts[-1][-1, 1] == r[0, 0]:
-            parts[-1] = parts[-1].copy()
-            parts[-1][-1, 1] = r[0, 1]
-            r = r[1:]
-        parts.append(r)
-    return np.concatenate(parts).astype(np.int64).reshape(-1, 2)
+    return _joined([_span_runs(s, o0, threshold, outliers) for o0, _, s in stat.spans()])
+
+
+def _joined(parts: list[np.ndarray]) -> np.ndarray:
+    """The runs of consecutive pieces, one run where one ends as the next begins (at a span's
+    edge: within a span the runs are apart)."""
+    runs = np.concatenate([np.zeros((0, 2), np.int64), *parts]).astype(np.int64)
+    if len(runs) < 2:
+        return runs
+    first = np.flatnonzero(np.r_[True, runs[1:, 0] != runs[:-1, 1]])
+    last = np.r_[first[1:] - 1, len(runs) - 1]
+    return np.column_stack([runs[first, 0], runs[last, 1]])
 
 
 def _span_runs(s: np.ndarray, o0: int, threshold: float, outliers: np.ndarray) -> np.ndarray:
@@ -277,12 +278,7 @@ class _LocalRuns:
         for o0, o1, s in stat.spans(only=wanted):
             for i in redo[(rs < o1) & (re > o0)].tolist():
                 a, b = max(starts[i], o0), min(ends[i], o1)
-                r = runs_of_true(s[a - o0:b - o0] < self.local * medians[i]).astype(np.int64) + a
-                parts = found[i]
-                if len(r) and parts and len(parts[-1]) and parts[-1][-1, 1] == r[0, 0]:
-                    parts[-1] = parts[-1].copy()
-                    parts[-1][-1, 1] = r[0, 1]
-                    r = r[1:]
-                parts.append(r)
+                still = s[a - o0:b - o0] < self.local * medians[i]
+                found[i].append(runs_of_true(still).astype(np.int64) + a)
         for i, parts in found.items():
-            self.pieces[i] = np.concatenate([np.zeros((0, 2), np.int64), *parts])
+            self.pieces[i] = _joined(parts)

@@ -16,7 +16,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.numerics.rows import floats
-from imucal.numerics.windows import chunked_window_sums, rolling_variance
+from imucal.numerics.windows import WindowWork, chunked_window_sums, rolling_variance
 
 SPAN = 1 << 17  # M1 values computed at once (a span of rows and a window, in six rows)
 KINDS = ("thesis", "imu_tk")
@@ -119,19 +119,17 @@ def statistic_spans(rows: Rows, n: int, width: int, window: int, statistic: str 
         k = int(width)
         b = max(16384, 2 * w)
         scale = w / max(w - 1, 1)
-        y = None
+        work = WindowWork()  # a span's buffers, reused: no fresh pages per span
         for o0 in range(0, n, span):
             o1 = min(n, o0 + span)
             if only is not None and not only(o0, o1):
                 continue
             z = _mirrored(rows, n, o0 - left, o1 - left + w - 1)  # the samples these need
-            length = len(z)
-            if y is None or y.shape[1] != length:
-                y = np.empty((2 * k, length))
+            y = work.rows(2 * k, len(z), w, b)  # each row contiguous, as a (2k, len) array's
             y[:k] = z.T
             y[:k] -= y[:k].mean(axis=1, keepdims=True)
             np.multiply(y[:k], y[:k], out=y[k:])
-            m = chunked_window_sums(y, w, o1 - o0, b)
+            m = chunked_window_sums(y, w, o1 - o0, b, work)
             m *= 1.0 / w
             m1, m2 = m[:k], m[k:]
             np.multiply(m1, m1, out=m1)
@@ -186,4 +184,4 @@ class Statistic:
     def spans(self, only: Callable[[int, int], bool] | None = None
               ) -> Iterator[tuple[int, int, np.ndarray]]:
         return statistic_spans(self.rows, self.rows.n, self.rows.width, self.window,
-                               self.kind, only=only)
+                               self.kind, span=SPAN, only=only)
