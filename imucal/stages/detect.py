@@ -104,7 +104,7 @@ INIT_MAX_F = 30.0
 # violent one, bends over several samples and fails the second test.
 SPIKE_NOISE = 50.0
 SPIKE_ISOLATION = 5.0
-GATHER = 1 << 15  # sample indices gathered at once (with their neighbours)
+GATHER = 1 << 15  # samples judged at once: gathered (with their neighbours), or twice as many read
 
 
 def wander_ratio(x, parts: int = INIT_PARTS) -> float:
@@ -187,8 +187,8 @@ def isolated_outliers(x) -> np.ndarray:
             s = pairwise_sum(lambda a, b, j=j: _spike_sizes(x, np.arange(a, b))[:, j], n) / n
         limit[j] = SPIKE_NOISE * s if s != 0.0 and np.isfinite(s) else np.inf
     found = [np.zeros(0, np.int64)]
-    for a in range(0, n, ROWS):
-        idx = np.arange(a, min(a + ROWS, n))
+    for a in range(0, n, GATHER * 2):
+        idx = np.arange(a, min(a + GATHER * 2, n))
         e = _spike_sizes(x, idx)
         for j in range(k):
             i = idx[e[:, j] > limit[j]]  # few: the steps only there

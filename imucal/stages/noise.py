@@ -25,10 +25,11 @@ import numpy as np
 from imucal.numerics.allan import AllanAccumulator, AllanCurve, NoiseFit, Rows, fit_noise
 from imucal.numerics.allan import pooled_allan_variance as _pooled
 from imucal.numerics.rows import search_sorted
-from imucal.session import median_step
+from imucal.session import chunked_median
 from imucal.stages.apply import CalibratedSignals
 
 AXES = ("x", "y", "z")
+STEP_ROWS = 1 << 16  # times read at once for the steps inside the blocks
 MAX_STILL_DRIFT = 0.01  # of |g|: above it the recording is not still (see StreamingNoise)
 # unit of the signal -> (white noise density, random walk) units
 DENSITY_UNITS = {
@@ -138,9 +139,22 @@ class _BlockClock:
     @property
     def rate(self) -> float:
         if self._rate is None:  # np.median of the blocks' steps to the bit, not all at once
-            step = median_step(self.t, [(a, b) for a, b in zip(self.lo, self.hi) if b - a > 1])
-            self._rate = float(1.0 / step)
+            self._rate = float(1.0 / chunked_median(self._steps, int(np.sum(
+                np.maximum(self.hi - self.lo - 1, 0)))))
         return self._rate
+
+    def _steps(self):
+        """The blocks' steps (``np.diff`` within each), about ``STEP_ROWS`` at a time: the
+        times of a run of blocks read at once, their steps put end to end."""
+        lo, hi = self.lo, self.hi
+        i = 0
+        while i < len(lo):
+            j = i + max(1, int(np.searchsorted(hi[i:], lo[i] + STEP_ROWS, side="right")))
+            a, b = int(lo[i]), int(hi[j - 1])
+            t = np.asarray(self.t[a:b], dtype=np.float64)
+            yield np.concatenate([np.diff(t[p - a:q - a]) for p, q in zip(lo[i:j], hi[i:j])
+                                  if q - p > 1] or [np.zeros(0)])
+            i = j
 
 
 def _blocks_noise(sensor: str, unit: str, clock: _BlockClock, x: np.ndarray | Rows

@@ -35,9 +35,11 @@ def saturated_runs(x, min_run: int = 5, chunk: int = CHUNK_ROWS) -> np.ndarray:
     parts: list[list[np.ndarray]] = [[empty] for _ in range(2 * k)]
     for c0 in range(0, len(x), chunk):
         rows = np.asarray(x[c0:c0 + chunk])
-        for axis in range(k):
-            for e, extreme in enumerate((hi[axis], lo[axis])):
-                parts[2 * axis + e].append(_runs_at(np.flatnonzero(rows[:, axis] == extreme)) + c0)
+        for e, extreme in enumerate((hi, lo)):
+            at = np.flatnonzero(rows == extreme)  # every axis at once: (row, axis) flattened
+            row, axis_of = at // k, at % k
+            for axis in range(k):
+                parts[2 * axis + e].append(_runs_at(row[axis_of == axis]) + c0)
     found = [empty]
     for p in parts:
         runs = _union(np.concatenate(p))
