@@ -295,8 +295,10 @@ class _PooledSums:
         # The runs meeting [lo, hi) and the points of each too close to its end.
         r0 = int(np.searchsorted(self.run_end, lo, side="right"))
         r1 = int(np.searchsorted(self.run_start, hi, side="left"))
-        a = np.maximum(self.run_end[r0:r1] - 2 * m + 1, self.run_start[r0:r1]).clip(lo, hi) - lo
-        b = self.run_end[r0:r1].clip(lo, hi) - lo
+        ends = self.run_end[r0:r1]
+        a = np.minimum(np.maximum(np.maximum(ends - 2 * m + 1, self.run_start[r0:r1]), lo),
+                       hi) - lo
+        b = np.minimum(ends, hi) - lo  # (np.clip costs more than the zeroing)
         for p, q in zip(a.tolist(), b.tolist()):
             d[p:q] = 0.0
         self.total[j] += np.einsum("ij,ij->j", d, d)

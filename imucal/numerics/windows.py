@@ -112,9 +112,12 @@ def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int,
     if not np.shares_memory(z, Y):
         flat[:, :length] = z
     flat[:, length:] = 0.0
+    need = min(m + w - (nch - 1) * b, b)  # of the last chunk: the outputs read no further
     for r in range(k):
-        for c in range(nch):
+        for c in range(nch - 1):
             np.cumsum(Y[r, c], out=E[r, c])
+        np.cumsum(Y[r, -1, :need], out=E[r, -1, :need])
+    E[:, -1, need:] = 0.0
     T = E[:, :, -1].copy()  # chunk totals
     E -= Y  # exclusive running sums within each chunk
     S = Y  # no longer needed: the sums go in its place

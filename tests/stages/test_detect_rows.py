@@ -66,12 +66,17 @@ def test_tuned_detection_from_slices_is_the_arrays(small_spans, overrides) -> No
     np.testing.assert_array_equal(whole.statistic(acc), whole.statistic(session.acc))
 
 
-def test_plain_detection_from_slices_is_the_arrays(small_spans) -> None:
+@pytest.mark.parametrize("init", [None, (40.0, 43.0)])
+def test_plain_detection_from_slices_is_the_arrays(small_spans, init) -> None:
+    """The thesis's detector; an initial interval where the device turns slides to the first
+    still stretch after it (the clock searched through slices)."""
     session = _glitched(seed=3)
-    whole = detect_static(session.acc, session.t_acc)
-    rows = detect_static(RowOnly(session.acc), RowOnly(session.t_acc))
+    settings = Settings(init=init).detect
+    whole = detect_static(session.acc, session.t_acc, settings)
+    rows = detect_static(RowOnly(session.acc), RowOnly(session.t_acc), settings)
     _same_detection(whole, rows)
     assert "sample 2000 " in whole.outlier_note  # the absurd one is named
+    assert (whole.note is None) == (init is None)
 
 
 @pytest.mark.parametrize("statistic", ["thesis", "imu_tk"])
