@@ -42,7 +42,7 @@ def main() -> None:
                 before, _ = tracemalloc.get_traced_memory()
                 tracemalloc.reset_peak()
                 seen = len(peaks)
-            t = time.process_time()
+            t = time.perf_counter()
             result = f(*a, **k)
             if args.memory:
                 _, peak = tracemalloc.get_traced_memory()
@@ -50,7 +50,7 @@ def main() -> None:
                 peaks.append(peak)
                 out[name] = max(out.get(name, 0.0), (peak - before) / MB)
             else:
-                out[name] = out.get(name, 0.0) + time.process_time() - t
+                out[name] = out.get(name, 0.0) + time.perf_counter() - t
             return result
         return g
 
@@ -60,10 +60,10 @@ def main() -> None:
     session = load_session(args.session)
     if args.memory:
         tracemalloc.start()
-    t = time.process_time()
+    t = time.perf_counter()
     result = pl.calibrate(session)
     if not args.memory:
-        out["calibrate"] = time.process_time() - t
+        out["calibrate"] = time.perf_counter() - t
     _ = result.noise
     unit = "MB" if args.memory else "s"
     print(args.label, " ".join(f"{k}={v:.2f}" for k, v in out.items()), unit, flush=True)
