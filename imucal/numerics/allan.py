@@ -257,19 +257,32 @@ class _PooledSums:
                  k: int, chunk: int) -> None:
         self.lags, self.n, self.chunk = lags, n, chunk
         self.run_start, self.run_end = run_start, run_end
-        self.win = np.zeros((1, k))  # S[w0 : w0 + len(win)]; S_0 = 0
-        self.w0 = 0
+        # S[w0 : w0 + size - off] lies in buf[off:size]: the running sums are written in
+        # place and the buffer moved up only when full (no copy of the window per feed).
+        self.buf = np.zeros((1 << 17, k))  # S_0 = 0
+        self.off, self.size, self.w0 = 0, 1, 0
         self.next = [0] * len(lags)  # per lag, the first start point not yet summed
         self.total = [np.zeros(k) for _ in lags]
         self.count = [0] * len(lags)
         self.d = np.empty((chunk, k))  # one slice's second differences
 
+    @property
+    def win(self) -> np.ndarray:
+        return self.buf[self.off:self.size]
+
     def feed(self, cen: np.ndarray) -> None:
-        if self.w0 + len(self.win) > 1:  # carry on from the last S: S_{p+1} = S_p + c_0, and
-            cen[0] += self.win[-1]  # on, the same sequential additions as one whole cumsum
-        np.cumsum(cen, axis=0, out=cen)
-        self.win = np.concatenate([self.win, cen])
-        have = self.w0 + len(self.win)  # S_0 .. S_{have - 1} known
+        n_new = len(cen)
+        if self.size + n_new > len(self.buf):  # move the window up, or make room for it
+            held = self.size - self.off
+            buf = self.buf if held + n_new <= len(self.buf) else np.empty(
+                (2 * (held + n_new), self.buf.shape[1]))
+            buf[:held] = self.buf[self.off:self.size]
+            self.buf, self.off, self.size = buf, 0, held
+        if self.w0 + self.size - self.off > 1:  # carry on from the last S: S_{p+1} = S_p + c_0,
+            cen[0] += self.buf[self.size - 1]  # and on: the sequential additions of one cumsum
+        np.cumsum(cen, axis=0, out=self.buf[self.size:self.size + n_new])
+        self.size += n_new
+        have = self.w0 + self.size - self.off  # S_0 .. S_{have - 1} known
         for j, m in enumerate(self.lags):
             last = self.n - 2 * m + 1  # start points 0 .. last - 1
             while self.next[j] < last:
@@ -281,7 +294,7 @@ class _PooledSums:
                 self.next[j] = hi
         pending = [lo for lo, m in zip(self.next, self.lags) if lo < self.n - 2 * m + 1]
         keep = min(pending) if pending else have - 1
-        self.win = self.win[keep - self.w0:]
+        self.off += keep - self.w0
         self.w0 = keep
 
     def _slice(self, j: int, m: int, lo: int, hi: int) -> None:
