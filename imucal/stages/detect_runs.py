@@ -200,46 +200,74 @@ def _span_runs(s: np.ndarray, o0: int, threshold: float, outliers: np.ndarray) -
 
 
 class _LocalRuns:
-    """The streamed runs with local ends: each run's sample of values gathered as its spans
-    go by, its median taken when it ends and its M1 compared with it then (while its spans'
-    values are held, up to OPEN_LIMIT); the medians checked against :func:`medians_of` at the
-    end, and the runs it corrects, or whose values were let go, redone span by span."""
+    """The streamed runs with local ends, a span at a time: the runs inside a span all at once
+    (their samples of values, candidate medians and comparisons, vectorised); a run across
+    spans gathered as they go by and compared with its median when it ends (its values held
+    up to OPEN_LIMIT). The candidates are checked against :func:`medians_of` of every run's
+    sample at the end, and the runs it corrects, or whose values were let go, redone."""
 
     def __init__(self, threshold: float, local: float, outliers: np.ndarray, step: int):
         self.threshold, self.local, self.outliers, self.step = threshold, local, outliers, step
-        self.starts: list[int] = []
-        self.ends: list[int] = []
-        self.values: list[np.ndarray] = []  # each run's sample, in order
-        self.medians: list[float] = []
-        self.pieces: list[np.ndarray | None] = []  # each run's refined runs; None: redo
+        self.runs: list[np.ndarray] = []  # (r, 2) batches of runs, in order
+        self.values: list[np.ndarray] = []  # their samples of values, in order
+        self.medians: list[np.ndarray] = []  # their candidate medians
+        self.pieces: list[np.ndarray] = []  # refined runs, (p, 3): start, end, run number
+        self.count = 0  # runs so far
+        self.let_go: list[int] = []  # runs whose values were not held: redone
         self.open: dict | None = None
 
     def scan(self, stat: Statistic) -> np.ndarray | None:
         for o0, o1, s in stat.spans():
             runs = _span_runs(s, o0, self.threshold, self.outliers)
-            for a, b in runs.tolist():
-                if self.open is not None and not (a == o0 and self.open["end"] == o0):
+            if self.open is not None:
+                if len(runs) and runs[0, 0] == o0 and self.open["end"] == o0:
+                    self._extend(s, o0, int(runs[0, 0]), int(runs[0, 1]))
+                    runs = runs[1:]
+                if self.open["end"] < o1 or len(runs):
                     self._close()
-                if self.open is None:
-                    self.open = {"start": a, "end": a, "values": [], "held": [], "n": 0}
-                self._extend(s, o0, a, b)
-                if b < o1:
-                    self._close()
-            if self.open is not None and self.open["end"] < o1:
-                self._close()
+            tail = None
+            if len(runs) and runs[-1, 1] == o1:  # may go on into the next span
+                tail, runs = runs[-1], runs[:-1]
+            if len(runs):
+                self._inside(s, o0, runs)
+            if tail is not None:
+                self.open = {"start": int(tail[0]), "end": int(tail[0]), "values": [],
+                             "held": [], "n": 0}
+                self._extend(s, o0, int(tail[0]), int(tail[1]))
         if self.open is not None:
             self._close()
-        starts, ends = np.asarray(self.starts, np.int64), np.asarray(self.ends, np.int64)
-        if len(starts) == 0:
+        if self.count == 0:
             return np.zeros((0, 2), np.int64)
+        runs = np.concatenate(self.runs)
+        starts, ends = runs[:, 0], runs[:, 1]
         if max(1, int(np.sum(ends - starts)) // MEDIAN_VALUES) != self.step:
             return None
-        lengths = -(-(ends - starts) // self.step)
-        exact = medians_of(np.concatenate(self.values), lengths)
-        redo = [i for i, p in enumerate(self.pieces) if p is None or exact[i] != self.medians[i]]
-        if redo:
-            self._redo(stat, starts, ends, exact, np.asarray(redo))
-        return np.concatenate(self.pieces).astype(np.int64).reshape(-1, 2)
+        exact = medians_of(np.concatenate(self.values), -(-(ends - starts) // self.step))
+        redo = np.union1d(np.flatnonzero(exact != np.concatenate(self.medians)),
+                          np.asarray(self.let_go, np.int64)).astype(np.int64)
+        pieces = np.concatenate([np.zeros((0, 3), np.int64), *self.pieces])
+        if len(redo):
+            pieces = pieces[~np.isin(pieces[:, 2], redo)]
+            pieces = np.concatenate([pieces, self._redo(stat, starts, ends, exact, redo)])
+            pieces = pieces[np.argsort(pieces[:, 0], kind="stable")]
+        return pieces[:, :2].copy()
+
+    def _inside(self, s: np.ndarray, o0: int, runs: np.ndarray) -> None:
+        """Runs that begin and end in this span, all at once."""
+        rel = runs - o0
+        lengths = rel[:, 1] - rel[:, 0]
+        v = s[run_indices(rel, self.step)]
+        median = medians_of(v, -(-lengths // self.step))  # candidates (keys of this span)
+        where = run_indices(rel)
+        still = np.zeros(len(s), dtype=bool)
+        still[where] = s[where] < self.local * np.repeat(median, lengths)
+        found = runs_of_true(still).astype(np.int64)
+        number = self.count + np.searchsorted(rel[:, 0], found[:, 0], side="right") - 1
+        self.pieces.append(np.column_stack([found + o0, number]))
+        self.runs.append(runs.astype(np.int64))
+        self.values.append(v)
+        self.medians.append(median)
+        self.count += len(runs)
 
     def _extend(self, s: np.ndarray, o0: int, a: int, b: int) -> None:
         run, step = self.open, self.step
@@ -256,19 +284,21 @@ class _LocalRuns:
         run, self.open = self.open, None
         v = np.concatenate(run["values"])
         median = np.partition(v, (len(v) - 1) // 2)[(len(v) - 1) // 2]
-        pieces = None
-        if run["held"] is not None:
+        if run["held"] is None:
+            self.let_go.append(self.count)
+        else:
             still = np.concatenate(run["held"]) < self.local * median
-            pieces = runs_of_true(still).astype(np.int64) + run["start"]
-        self.starts.append(run["start"])
-        self.ends.append(run["end"])
+            found = runs_of_true(still).astype(np.int64) + run["start"]
+            self.pieces.append(np.column_stack([found, np.full(len(found), self.count)]))
+        self.runs.append(np.array([[run["start"], run["end"]]], np.int64))
         self.values.append(v)
-        self.medians.append(median)
-        self.pieces.append(pieces)
+        self.medians.append(np.array([median]))
+        self.count += 1
 
     def _redo(self, stat: Statistic, starts: np.ndarray, ends: np.ndarray, medians: np.ndarray,
-              redo: np.ndarray) -> None:
-        """The runs ``redo`` compared with their exact medians, over the spans they cover."""
+              redo: np.ndarray) -> np.ndarray:
+        """The runs ``redo`` compared with their exact medians over the spans they cover:
+        their refined runs, each with its run's number."""
         rs, re = starts[redo], ends[redo]
 
         def wanted(o0: int, o1: int) -> bool:
@@ -280,5 +310,8 @@ class _LocalRuns:
                 a, b = max(starts[i], o0), min(ends[i], o1)
                 still = s[a - o0:b - o0] < self.local * medians[i]
                 found[i].append(runs_of_true(still).astype(np.int64) + a)
+        out = [np.zeros((0, 3), np.int64)]
         for i, parts in found.items():
-            self.pieces[i] = _joined(parts)
+            r = _joined(parts)
+            out.append(np.column_stack([r, np.full(len(r), i)]))
+        return np.concatenate(out)
