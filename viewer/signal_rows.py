@@ -65,10 +65,11 @@ class SignalRows:
     detector_range: tuple[float, float] | None  # with the threshold's log10 in it
 
 
-def detector_statistic(result: Result) -> np.ndarray:
-    """The detector's statistic s2 per accelerometer sample (M1): the one place the viewer
-    reads it (it may come to be made on request rather than kept in the result)."""
-    return result.detection.statistic
+def detector_statistic(result: Result) -> Iterator[np.ndarray]:
+    """The detector's statistic s2 per accelerometer sample (M1), a span at a time in order:
+    the one place the viewer reads it. It is not kept in the result: computed again from the
+    accelerometer, the same values the detector saw, never whole."""
+    return result.detection.statistic_chunks(result.session.acc)
 
 
 def signal_rows(result: Result) -> SignalRows:
@@ -122,20 +123,19 @@ def _sensor(result: Result, which: str) -> SensorRows:
 def _detector(result: Result) -> tuple[Series, tuple[float, float] | None]:
     """The statistic's log10 (NaN where it is not positive: not drawn) as an envelope, and
     the y range of it and the threshold: from the smallest to the largest value (q = 0)."""
-    stat = detector_statistic(result)
-    n = len(stat)
+    n = len(result.session.t_acc)
     rows = EnvelopeStream(result.session.t_acc, axes_cut(n))
     y_range = RobustRange(n + 1, q=0.0)
-    for a in range(0, n, CHUNK):
-        v = log10_axis(stat[a:a + CHUNK])
+    for stat in detector_statistic(result):
+        v = log10_axis(stat)
         rows.feed(v)
         y_range.add(v)
     threshold = log10_axis(np.array([result.detection.threshold]))
     y_range.add(threshold)
 
-    def values() -> Iterator[np.ndarray]:
-        for a in range(0, n, CHUNK):
-            yield _finite(log10_axis(stat[a:a + CHUNK]))
+    def values() -> Iterator[np.ndarray]:  # a second pass, only if the kept tails missed
+        for stat in detector_statistic(result):
+            yield _finite(log10_axis(stat))
         yield _finite(threshold)
 
     return Series(*rows.rows()), y_range.result(values)

@@ -29,7 +29,7 @@ textbook result is what the tests compare against (written out there, not import
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,7 +135,7 @@ def allan_variance(x: np.ndarray, *, overlap: int | None = None,
 
 
 Rows = Callable[[int, int], np.ndarray]  # rows(a, b): the (b - a, k) rows [a, b) of a signal
-RUN_ROWS = 1 << 16  # rows asked of a row getter at once (a run of whole runs, or one longer)
+RUN_ROWS = 1 << 16  # rows asked of a row getter at once: the still rows of one such cell
 
 
 def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.ndarray,
@@ -148,12 +148,13 @@ def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.nda
 
     The runs are packed end to end into one running sum ``S`` (each run centred on its mean: no
     digits lost, and a constant within a run leaves its second differences unchanged); per lag,
-    a slice of ``chunk`` start points at a time, with a mask of those whose clusters stay in
-    their run. ``S`` is streamed: the runs are read a run of them (about ``RUN_ROWS`` rows) at a
-    time, and only the window of ``S`` a pending slice still needs is kept (``chunk`` + twice
-    the lag + a read: bounded by the longest run, not by the samples of all runs). The sums are
-    the packed whole's to the bit: the running sum carries on from its last value, each lag's
-    slices are the same and are added in the same order.
+    a slice of ``chunk`` start points at a time, the points whose clusters leave their run set
+    to zero. ``S`` is streamed: the rows are read a cell of ``RUN_ROWS`` rows at a time (the
+    still rows in it; a run across cells is put together from them), and only the window of
+    ``S`` a pending slice still needs is kept (``chunk`` + twice the lag + a read: bounded by
+    the longest run, not by the samples of all runs). The sums are the packed whole's to the
+    bit: the running sum carries on from its last value, each lag's slices are the same, each
+    summed in order (as ``einsum`` sums them) and added in the same order.
     """
     if callable(x):
         k = int(width)
@@ -162,6 +163,7 @@ def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.nda
             # A fresh C-ordered array: the centring's mean reduces over the layout a packed
             # copy of the runs had.
             return np.ascontiguousarray(x(a, b), dtype=np.float64).reshape(b - a, k)
+        whole = None
     else:
         arr = np.asarray(x, dtype=np.float64)
         arr = arr.reshape(len(arr), -1)
@@ -169,6 +171,7 @@ def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.nda
 
         def rows(a: int, b: int) -> np.ndarray:
             return arr[a:b]
+        whole = rows  # a run across cells is a slice of the array, in its own layout
     starts = np.asarray(starts, dtype=np.int64)
     ends = np.asarray(ends, dtype=np.int64)
     ok = ends > starts
@@ -186,7 +189,7 @@ def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.nda
         lags.append(m)
         m *= 2
     acc = _PooledSums(lags, n, run_start, run_start + lengths, k, chunk)
-    for cen in _centred_runs(rows, starts, ends, k):
+    for cen in _centred_runs(rows, starts, ends, k, whole):
         acc.feed(cen)
     keep = [j for j, c in enumerate(acc.count) if c]
     lags_a = np.asarray([lags[j] for j in keep], dtype=np.int64)
@@ -196,25 +199,54 @@ def pooled_allan_variance(x: np.ndarray | Rows, starts: np.ndarray, ends: np.nda
                       stride=np.ones_like(lags_a), n=n)
 
 
-def _centred_runs(rows: Rows, starts: np.ndarray, ends: np.ndarray, k: int):
-    """Each read's runs, centred and end to end (one (rows, k) array per read of about
-    ``RUN_ROWS`` rows, or of one longer run)."""
-    i = 0
-    while i < len(starts):
-        j = i + 1
-        r0, r1 = int(starts[i]), int(ends[i])
-        while j < len(starts) and max(r1, int(ends[j])) - min(r0, int(starts[j])) <= RUN_ROWS:
-            r0, r1 = min(r0, int(starts[j])), max(r1, int(ends[j]))
-            j += 1
-        xs = rows(r0, r1)
-        out = np.empty((int(np.sum(ends[i:j] - starts[i:j])), k))
-        p = 0
-        for a, b in zip(starts[i:j], ends[i:j]):
-            seg = xs[a - r0:b - r0]
-            np.subtract(seg, seg.mean(axis=0), out=out[p:p + b - a])
-            p += b - a
-        yield out
-        i = j
+def _centred_runs(rows: Rows, starts: np.ndarray, ends: np.ndarray, k: int,
+                  whole: Rows | None) -> Iterator[np.ndarray]:
+    """The runs that end in each cell of ``RUN_ROWS`` rows, each centred on its mean, end to
+    end (one array per cell where one ends). A cell's still rows are one read (a getter that
+    computes whole cells, as ``Calibration.rows`` does, computes each once); a run across
+    cells is put together from its reads, or is ``whole(a, b)`` when that is given."""
+    pending: list[np.ndarray] = []  # the rows read so far of run i, begun in an earlier cell
+    i, nr, pos = 0, len(starts), int(starts[0]) if len(starts) else 0
+    while i < nr:
+        c1 = (pos // RUN_ROWS + 1) * RUN_ROWS
+        j = i + int(np.searchsorted(starts[i:], c1, side="left"))  # runs i .. j-1 meet it
+        a, b = pos, min(c1, int(ends[j - 1]))
+        xs = rows(a, b)
+        parts, first = [], i
+        if pos > starts[i]:  # run i began in an earlier cell
+            if ends[i] > c1:  # and goes on past this one
+                pending.append(xs)
+                pos = c1
+                continue
+            seg = whole(int(starts[i]), int(ends[i])) if whole else np.concatenate(
+                [*pending, xs[:ends[i] - a]])
+            parts.append(seg - seg.mean(axis=0))
+            pending, first = [], i + 1
+        done = j if ends[j - 1] <= c1 else j - 1  # runs first .. done-1 end in this cell
+        if first < done:
+            parts.append(_centred(xs, starts[first:done] - a, ends[first:done] - a))
+        if done < j:  # run `done` goes on into the next cell
+            pending = [xs[starts[done] - a:]]
+            i, pos = done, c1
+        else:
+            i = j
+            pos = int(starts[j]) if j < nr else pos
+        if parts:
+            yield np.concatenate(parts) if len(parts) > 1 else parts[0]
+
+
+def _centred(xs: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """The rows ``[s[r], e[r])`` of ``xs``, each run less its mean, end to end. A C-ordered
+    run's mean is its sum in order over its rows (as ``mean(axis=0)`` sums them; ``einsum``
+    does it in a quarter of the time) over its length; other layouts take ``mean`` itself."""
+    out = np.empty((int(np.sum(e - s)), xs.shape[1]))
+    p = 0
+    for a, b in zip(s.tolist(), e.tolist()):
+        seg = xs[a:b]
+        mean = np.einsum("ij->j", seg) / (b - a) if seg.flags.c_contiguous else seg.mean(axis=0)
+        np.subtract(seg, mean, out=out[p:p + b - a])
+        p += b - a
+    return out
 
 
 class _PooledSums:
@@ -225,18 +257,32 @@ class _PooledSums:
                  k: int, chunk: int) -> None:
         self.lags, self.n, self.chunk = lags, n, chunk
         self.run_start, self.run_end = run_start, run_end
-        self.win = np.zeros((1, k))  # S[w0 : w0 + len(win)]; S_0 = 0
-        self.w0 = 0
+        # S[w0 : w0 + size - off] lies in buf[off:size]: the running sums are written in
+        # place and the buffer moved up only when full (no copy of the window per feed).
+        self.buf = np.zeros((1 << 17, k))  # S_0 = 0
+        self.off, self.size, self.w0 = 0, 1, 0
         self.next = [0] * len(lags)  # per lag, the first start point not yet summed
         self.total = [np.zeros(k) for _ in lags]
         self.count = [0] * len(lags)
+        self.d = np.empty((chunk, k))  # one slice's second differences
+
+    @property
+    def win(self) -> np.ndarray:
+        return self.buf[self.off:self.size]
 
     def feed(self, cen: np.ndarray) -> None:
-        if self.w0 + len(self.win) > 1:  # carry on from the last S: S_{p+1} = S_p + c_0, and
-            cen[0] += self.win[-1]  # on, the same sequential additions as one whole cumsum
-        np.cumsum(cen, axis=0, out=cen)
-        self.win = np.concatenate([self.win, cen])
-        have = self.w0 + len(self.win)  # S_0 .. S_{have - 1} known
+        n_new = len(cen)
+        if self.size + n_new > len(self.buf):  # move the window up, or make room for it
+            held = self.size - self.off
+            buf = self.buf if held + n_new <= len(self.buf) else np.empty(
+                (2 * (held + n_new), self.buf.shape[1]))
+            buf[:held] = self.buf[self.off:self.size]
+            self.buf, self.off, self.size = buf, 0, held
+        if self.w0 + self.size - self.off > 1:  # carry on from the last S: S_{p+1} = S_p + c_0,
+            cen[0] += self.buf[self.size - 1]  # and on: the sequential additions of one cumsum
+        np.cumsum(cen, axis=0, out=self.buf[self.size:self.size + n_new])
+        self.size += n_new
+        have = self.w0 + self.size - self.off  # S_0 .. S_{have - 1} known
         for j, m in enumerate(self.lags):
             last = self.n - 2 * m + 1  # start points 0 .. last - 1
             while self.next[j] < last:
@@ -248,18 +294,28 @@ class _PooledSums:
                 self.next[j] = hi
         pending = [lo for lo, m in zip(self.next, self.lags) if lo < self.n - 2 * m + 1]
         keep = min(pending) if pending else have - 1
-        self.win = self.win[keep - self.w0:]
+        self.off += keep - self.w0
         self.w0 = keep
 
     def _slice(self, j: int, m: int, lo: int, hi: int) -> None:
+        """Start points ``[lo, hi)`` at lag ``m``: ``S_{i+2m} - 2 S_{i+m} + S_i``, zero where
+        the cluster leaves its run (the last ``2m - 1`` points of each), summed in order."""
         S, o = self.win, self.w0
-        i = np.arange(lo, hi)
-        run = np.searchsorted(self.run_start, i, side="right") - 1
-        valid = self.run_end[run] - i >= 2 * m  # samples to the end of its run
-        d = S[lo + 2 * m - o:hi + 2 * m - o] - 2.0 * S[lo + m - o:hi + m - o]
+        d = self.d[:hi - lo]
+        np.multiply(S[lo + m - o:hi + m - o], 2.0, out=d)
+        np.subtract(S[lo + 2 * m - o:hi + 2 * m - o], d, out=d)
         d += S[lo - o:hi - o]
-        self.total[j] += np.einsum("ij,ij,i->j", d, d, valid.astype(np.float64))
-        self.count[j] += int(np.count_nonzero(valid))
+        # The runs meeting [lo, hi) and the points of each too close to its end.
+        r0 = int(np.searchsorted(self.run_end, lo, side="right"))
+        r1 = int(np.searchsorted(self.run_start, hi, side="left"))
+        ends = self.run_end[r0:r1]
+        a = np.minimum(np.maximum(np.maximum(ends - 2 * m + 1, self.run_start[r0:r1]), lo),
+                       hi) - lo
+        b = np.minimum(ends, hi) - lo  # (np.clip costs more than the zeroing)
+        for p, q in zip(a.tolist(), b.tolist()):
+            d[p:q] = 0.0
+        self.total[j] += np.einsum("ij,ij->j", d, d)
+        self.count[j] += (hi - lo) - int(np.sum(b - a))
 
 
 @dataclass(frozen=True)

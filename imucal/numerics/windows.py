@@ -91,19 +91,33 @@ def moving_sum(y: np.ndarray, window: int, chunk: int = 16384, group: int = 8,
     return out
 
 
-def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int) -> np.ndarray:
+def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int,
+                        work: WindowWork | None = None) -> np.ndarray:
     """``S[:, i] = z[:, i:i + w].sum(axis=1)`` for ``i < m``, by running sums restarted every
-    ``b`` samples (see :func:`moving_sum`)."""
+    ``b`` samples (see :func:`moving_sum`).
+
+    With ``work`` the two chunk-sized buffers are its own, reused from call to call (fresh
+    pages cost more than the sums: 14 MB a call for a span of M1), and ``z`` may already lie in
+    the first (:meth:`WindowWork.rows`): then it is not copied. The result is then a view of
+    that buffer, good until the next call. The running sums are taken a chunk of a row at a
+    time (numpy's cumsum along the last axis of a 3-d array takes twice as long), each the
+    same sequence of additions."""
     k, length = z.shape
     b = max(w, min(b, length + 1))  # short signals: one chunk
     # Chunks cover at least length + 1 samples, so a window that runs past the last chunk
     # ends past the signal and is not an output.
     nch = -(-(length + 1) // b)
-    Y = np.empty((k, nch * b))
-    Y[:, :length] = z
-    Y[:, length:] = 0.0
-    Y = Y.reshape(k, nch, b)
-    E = np.cumsum(Y, axis=2)
+    Y, E = (work or WindowWork()).arrays(k, nch, b)
+    flat = Y.reshape(k, -1)
+    if not np.shares_memory(z, Y):
+        flat[:, :length] = z
+    flat[:, length:] = 0.0
+    need = min(m + w - (nch - 1) * b, b)  # of the last chunk: the outputs read no further
+    for r in range(k):
+        for c in range(nch - 1):
+            np.cumsum(Y[r, c], out=E[r, c])
+        np.cumsum(Y[r, -1, :need], out=E[r, -1, :need])
+    E[:, -1, need:] = 0.0
     T = E[:, :, -1].copy()  # chunk totals
     E -= Y  # exclusive running sums within each chunk
     S = Y  # no longer needed: the sums go in its place
@@ -113,6 +127,26 @@ def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int) -> np.ndarray:
     return S.reshape(k, -1)[:, :m]
 
 
+class WindowWork:
+    """The buffers of :func:`chunked_window_sums`, kept from one call to the next."""
+
+    def __init__(self) -> None:
+        self._y: np.ndarray | None = None
+        self._e: np.ndarray | None = None
+
+    def arrays(self, k: int, nch: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+        if self._y is None or self._y.shape != (k, nch, b):
+            self._y, self._e = np.empty((k, nch, b)), np.empty((k, nch, b))
+        return self._y, self._e
+
+    def rows(self, k: int, length: int, w: int, b: int) -> np.ndarray:
+        """``(k, length)`` rows inside the first buffer, for ``chunked_window_sums`` of ``k``
+        rows of ``length`` samples over windows of ``w`` (not copied there again)."""
+        b = max(w, min(b, length + 1))
+        y, _ = self.arrays(k, -(-(length + 1) // b), b)
+        return y.reshape(k, -1)[:, :length]
+
+
 def runs_of_true(mask: np.ndarray) -> np.ndarray:
     """[start, end) index pairs of the runs of True in a boolean array, vectorised."""
     padded = np.concatenate(([False], mask, [False])).astype(np.int8)
@@ -120,44 +154,53 @@ def runs_of_true(mask: np.ndarray) -> np.ndarray:
     return edges.reshape(-1, 2)
 
 
-def block_means(x: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-    """Mean of x over each [start, end) block, in one pass (no loop over blocks)."""
+def block_means(x, blocks: np.ndarray) -> np.ndarray:
+    """Mean of x over each [start, end) block, in one pass (no loop over blocks), read through
+    row slices (:func:`segment_sums`)."""
     if len(blocks) == 0:
         return np.zeros((0, x.shape[1]))
     sums = segment_sums(x, blocks[:, 0], blocks[:, 1])
     return sums / np.maximum(blocks[:, 1] - blocks[:, 0], 1)[:, None]
 
 
-def segment_sums(x: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+def segment_sums(x, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """Sums of the rows of ``x`` (N, k) over the ranges ``[starts[i], ends[i])``, 0 for an
     empty range.
 
-    For sorted, non-overlapping ranges (static blocks, or the chunks of each) this is one
-    ``np.add.reduceat`` pass with no temporary the size of ``x``; each sum is accumulated
-    over its own range only, so it keeps full precision on long recordings (a difference of
-    two cumulative sums loses the digits of the running total). Other ranges fall back to
-    cumulative sums.
+    For sorted, non-overlapping ranges (static blocks, or the chunks of each) this is
+    ``np.add.reduceat`` over slices of ``x`` spanning about :data:`CHUNK_ROWS` rows (a longer
+    range alone): no temporary the size of ``x``, which is read through row slices only. Each
+    sum is accumulated over its own range only, as on the whole array, so it keeps full
+    precision on long recordings (a difference of two cumulative sums loses the digits of the
+    running total) and is the same to the bit. Other ranges fall back to cumulative sums over
+    the whole array (in memory).
     """
-    x = np.asarray(x)
     starts = np.asarray(starts, np.int64)
     ends = np.asarray(ends, np.int64)
     n = len(x)
-    out = np.zeros((len(starts),) + x.shape[1:])
+    out = np.zeros((len(starts),) + tuple(x.shape[1:]))
     keep = ends > starts
     s, e = starts[keep], ends[keep]
     if len(s) == 0:
         return out
     if s[0] < 0 or e[-1] > n or np.any(e[:-1] > s[1:]):
+        x = np.asarray(x)
         xc = x - x[0]
         cs = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(xc, axis=0)])
         out[keep] = cs[e] - cs[s] + (e - s).reshape((-1,) + (1,) * (x.ndim - 1)) * x[0]
         return out
-    idx = np.empty(2 * len(s), np.int64)
-    idx[0::2] = s
-    idx[1::2] = e
-    if idx[-1] == n:  # the last range runs to the end: reduceat's last segment does
-        idx = idx[:-1]
-    out[keep] = np.add.reduceat(x, idx, axis=0)[0::2]
+    where = np.flatnonzero(keep)
+    i = 0
+    while i < len(s):  # runs of ranges spanning about CHUNK_ROWS rows
+        j = i + max(1, int(np.searchsorted(e[i:], s[i] + CHUNK_ROWS, side="right")))
+        a, b = int(s[i]), int(e[j - 1])
+        idx = np.empty(2 * (j - i), np.int64)
+        idx[0::2] = s[i:j] - a
+        idx[1::2] = e[i:j] - a
+        if idx[-1] == b - a:  # the last range runs to the slice's end: reduceat's last does
+            idx = idx[:-1]
+        out[where[i:j]] = np.add.reduceat(np.asarray(x[a:b]), idx, axis=0)[0::2]
+        i = j
     return out
 
 

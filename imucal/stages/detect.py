@@ -4,19 +4,35 @@ the isolated outliers it must not trip over. Choosing the values from the data i
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.numerics.windows import (
-    block_means,
-    chunked_window_sums,
-    median_inplace,
-    rolling_variance,
-    runs_of_true,
+from imucal.numerics.rows import (
+    ROWS,
+    column_extremes,
+    floats,
+    pairwise_sum,
+    rows_where,
+    search_sorted,
+    strictly_increasing,
+    value_at,
 )
+from imucal.numerics.windows import block_means
+from imucal.session import median_step
 from imucal.settings import THESIS_INIT, DetectSettings, Settings
+from imucal.stages.detect_runs import streamed_still_runs, values_at
+from imucal.stages.detect_stat import (
+    CleanRows,
+    Statistic,
+    combine_variances,
+    rolling_statistic,
+    statistic_spans,
+)
+
+__all__ = ["combine_variances", "rolling_statistic"]  # M1 itself: imucal.stages.detect_stat
 
 # The thesis's values (method.md §1), in seconds: its 101-sample window and 100-sample
 # shortest block at 100 Hz (its initial still interval is settings.THESIS_INIT).
@@ -56,9 +72,11 @@ class Tuning:
 
 @dataclass(frozen=True)
 class Detection:
-    """Where the sensor lies still: the statistic, the threshold and the blocks found."""
+    """Where the sensor lies still: the threshold on the statistic and the blocks found.
 
-    statistic: np.ndarray  # s2(t) per accelerometer sample (M1)
+    The statistic itself (M1 at every accelerometer sample: 173 MB at 6 hours of 1 kHz) is not
+    kept: :meth:`statistic` computes it again from the accelerometer, a span at a time."""
+
     threshold: float  # k * s2_init
     s2_init: float  # the reference level (the initial still interval's s2, or the quiet level)
     blocks: np.ndarray  # (B, 2) int, [start, end) accelerometer sample indices
@@ -72,6 +90,19 @@ class Detection:
     outlier_note: str | None = None  # the glitches among them named for the user (glitches())
     tuning: Tuning | None = None  # how the values were chosen (None: all given)
     orientations: int | None = None  # distinct still directions of the blocks
+    statistic_kind: str = "thesis"  # M1 as the thesis squares the variances, or "imu_tk"
+
+    def statistic(self, acc) -> np.ndarray:
+        """s2(t) per accelerometer sample (M1) of the session's accelerometer ``acc``, as the
+        detector saw it (its outliers replaced, its window): the same values to the bit."""
+        return rolling_statistic(CleanRows(acc, self.outliers), self.window, self.statistic_kind)
+
+    def statistic_chunks(self, acc) -> Iterator[np.ndarray]:
+        """:meth:`statistic` a span at a time, in order (the same values, never whole)."""
+        rows = CleanRows(acc, self.outliers)
+        for _, _, s2 in statistic_spans(rows, len(rows), rows.width, self.window,
+                                        self.statistic_kind):
+            yield s2
 
 
 # The initial interval must be still (method.md §1): its mean may not wander. It is cut into
@@ -87,96 +118,55 @@ INIT_MAX_F = 30.0
 # violent one, bends over several samples and fails the second test.
 SPIKE_NOISE = 50.0
 SPIKE_ISOLATION = 5.0
+GATHER = 1 << 15  # samples judged at once: gathered (with their neighbours), or twice as many read
 
 
-def wander_ratio(x: np.ndarray, parts: int = INIT_PARTS) -> float:
+def wander_ratio(x, parts: int = INIT_PARTS) -> float:
     """F ratio of the part means of ``x`` (n, k) against the noise within the parts (the largest
-    over the columns); 0 where a column is constant."""
+    over the columns); 0 where a column is constant. ``x`` is read through row slices: a span
+    longer than a read (a still block hours long) a block of rows at a time."""
     m = len(x) // parts
     if m < 2:
         return 0.0
-    xp = np.asarray(x[:m * parts], dtype=np.float64).reshape(parts, m, -1)
-    xp = xp - xp[0, 0]  # centred: raw counts lose no digits
-    within = xp.var(axis=1, ddof=1).mean(axis=0)
-    between = m * xp.mean(axis=1).var(axis=0, ddof=1)
+    if m * parts <= ROWS:
+        xp = floats(x, 0, m * parts).reshape(parts, m, -1)
+        xp = xp - xp[0, 0]  # centred: raw counts lose no digits
+        within = xp.var(axis=1, ddof=1).mean(axis=0)
+        means = xp.mean(axis=1)
+    else:
+        means, var = _part_moments(x, parts, m)
+        within = var.mean(axis=0)
+    between = m * means.var(axis=0, ddof=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         f = np.where(within > 0, between / within, np.where(between > 0, np.inf, 0.0))
     return float(f.max())
 
 
-def rolling_statistic(x: np.ndarray, window: int, statistic: str = "thesis",
-                      span: int = 1 << 17) -> np.ndarray:
-    """``combine_variances(rolling_variance(x, window), statistic)`` (M1), computed ``span``
-    samples at a time with every axis together, so the temporaries stay in cache and the
-    recording is read once.
-
-    Each span is centred on its own mean before the running sums (the variance does not
-    depend on the shift; a local one guards even better against cancellation than the
-    overall mean), so the values agree with :func:`rolling_variance`'s to rounding.
-    """
-    if statistic not in ("thesis", "imu_tk"):
-        return combine_variances(rolling_variance(x, window), statistic)  # raises
-    x = np.asarray(x, dtype=np.float64)
-    n, k = x.shape
-    w = int(window)
-    left = w // 2
-    if n <= max(left, w - 1 - left) or n <= 2 * span:
-        return combine_variances(rolling_variance(x, w), statistic)
-    b = max(16384, 2 * w)
-    scale = w / max(w - 1, 1)
-    stat = np.empty(n)
-    y = None
-    for o0 in range(0, n, span):
-        o1 = min(n, o0 + span)
-        a, c = o0 - left, o1 - left + w - 1  # the mirrored samples these outputs need
-        if a >= 0 and c <= n:
-            z = x[a:c]
-        else:
-            idx = np.arange(a, c)
-            idx = np.where(idx < 0, -idx, idx)
-            idx = np.where(idx > n - 1, 2 * (n - 1) - idx, idx)
-            z = x[idx]
-        length = c - a
-        if y is None or y.shape[1] != length:
-            y = np.empty((2 * k, length))
-        y[:k] = z.T
-        y[:k] -= y[:k].mean(axis=1, keepdims=True)
-        np.multiply(y[:k], y[:k], out=y[k:])
-        m = chunked_window_sums(y, w, o1 - o0, b)
-        m *= 1.0 / w
-        m1, m2 = m[:k], m[k:]
-        np.multiply(m1, m1, out=m1)
-        v = np.subtract(m2, m1, out=m2)
-        np.maximum(v, 0.0, out=v)
-        v *= scale
-        out = stat[o0:o1]
-        np.multiply(v[0], v[0], out=out)
-        for j in range(1, k):
-            out += v[j] * v[j]
-    return stat if statistic == "thesis" else np.sqrt(stat, out=stat)
+def _part_moments(x, parts: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The means and variances (ddof 1) of ``parts`` consecutive parts of ``m`` rows of ``x``,
+    centred on its first row, as ``var(axis=1)`` of the reshaped whole gives them: the same
+    sequential sums over each part's rows, carried from one read to the next."""
+    x0 = floats(x, 0, 1)[0]
+    k = len(x0)
+    means = np.empty((parts, k))
+    var = np.empty((parts, k))
+    for p in range(parts):
+        for moment, out in ((1, means), (2, var)):
+            acc = None
+            for a in range(p * m, (p + 1) * m, ROWS):
+                c = floats(x, a, min(a + ROWS, (p + 1) * m)) - x0
+                if moment == 2:
+                    c -= means[p]
+                    np.multiply(c, c, out=c)
+                acc = np.add.reduce(c if acc is None else np.vstack([acc, c]), axis=0)
+            out[p] = acc / (m if moment == 1 else m - 1)
+    return means, var
 
 
-def combine_variances(var: np.ndarray, statistic: str) -> np.ndarray:
-    if statistic not in ("thesis", "imu_tk"):
-        raise ImucalError(f"unknown static statistic {statistic!r}; expected 'thesis' or "
-                          "'imu_tk'", source="settings", field="statistic")
-    var = np.asarray(var, dtype=np.float64)
-    if var.ndim == 1:
-        out = np.sum(var * var)
-    else:  # column by column: (N, 3) arrays may be column-major (see rolling_variance)
-        out = var[..., 0] * var[..., 0]
-        for j in range(1, var.shape[-1]):
-            out += var[..., j] * var[..., j]
-    if statistic == "thesis":
-        return out  # M1: var_x^2 + var_y^2 + var_z^2
-    return np.sqrt(out)
-
-
-def sample_rate(t: np.ndarray) -> tuple[float, bool]:
-    """Median sample rate (Hz) and whether the timestamps strictly increase."""
-    dt = np.diff(t)
-    increasing = bool(len(dt) and dt.min() > 0)
-    return 1.0 / median_inplace(dt), increasing
+def sample_rate(t) -> float:
+    """Median sample rate (Hz): ``1 / np.median(np.diff(t))`` to the bit, the steps read a
+    block at a time (:func:`imucal.session.median_step`)."""
+    return float(1.0 / median_step(t, [(0, len(t))]))
 
 
 def thesis_window(rate: float) -> int:
@@ -188,44 +178,65 @@ def thesis_min_len(rate: float) -> int:
     return max(1, int(round(THESIS_MIN_LEN_S * rate)))
 
 
-def isolated_outliers(x: np.ndarray) -> np.ndarray:
-    """Indices of isolated outlier samples (see SPIKE_NOISE), in O(N) per axis.
+def isolated_outliers(x) -> np.ndarray:
+    """Indices of isolated outlier samples (see SPIKE_NOISE), in O(N), a block of rows at a
+    time.
 
     ``e_i = x_i - (x_(i-1) + x_(i+1)) / 2`` is the distance from the neighbours' mean; its
-    typical size (1.4826 x the median of |e|, on a subsample of long recordings) is the sensor
-    noise. Only the few samples far beyond it have their neighbours' steps compared. The ends
-    are mirrored, so the first and last samples are judged too.
+    typical size (1.4826 x the median of |e| over every stride-th sample, gathered) is the
+    sensor noise. Only the few samples far beyond it have their neighbours' steps compared.
+    The ends are mirrored, so the first and last samples are judged too.
     """
-    x = np.asarray(x, dtype=np.float64)
     n = len(x)
     if n < 5:
         return np.zeros(0, np.int64)
-    stride = max(1, n // 200_000)
-    found = []
-    e = np.empty(n)  # one buffer for every axis: no signal-sized temporaries (issue 12)
-    for j in range(x.shape[1]):
-        c = x[:, j]
-        # e = c - (c_prev + c_next) / 2, the ends mirrored (c_-1 = c_1, c_n = c_(n-2)), in
-        # the order of operations it always had: sum, times -0.5, plus c.
-        np.add(c[:-2], c[2:], out=e[1:-1])
-        e[0], e[-1] = c[1] + c[1], c[-2] + c[-2]
-        e *= -0.5
-        e += c
-        np.abs(e, out=e)
-        scale = 1.4826 * float(np.median(e[::stride]))
-        if scale == 0.0:  # quantised: most samples equal their neighbours
-            scale = float(np.mean(e))
-        if scale == 0.0 or not np.isfinite(scale):
-            continue
-        i = np.flatnonzero(e > SPIKE_NOISE * scale)  # few: the steps only there
-        if len(i):
-            prev2, prev, nxt, nxt2 = (c[_mirrored(i + d, n)] for d in (-2, -1, 1, 2))
-            steps = np.maximum.reduce([np.abs(nxt - prev), np.abs(nxt2 - nxt),
-                                       np.abs(prev - prev2)])
-        else:
-            steps = np.zeros(0)
-        found.append(i[e[i] > SPIKE_ISOLATION * steps])
-    return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
+    k = int(x.shape[1])
+    sampled = np.arange(0, n, max(1, n // 200_000))
+    typical = np.concatenate([_spike_sizes(x, sampled[i:i + GATHER])
+                              for i in range(0, len(sampled), GATHER)])
+    limit = np.empty(k)
+    for j in range(k):
+        s = 1.4826 * float(np.median(typical[:, j]))
+        if s == 0.0:  # quantised: most samples equal their neighbours
+            s = pairwise_sum(lambda a, b, j=j: _spike_sizes(x, np.arange(a, b))[:, j], n) / n
+        limit[j] = SPIKE_NOISE * s if s != 0.0 and np.isfinite(s) else np.inf
+    found = [np.zeros(0, np.int64)]
+    for a in range(0, n, GATHER * 2):
+        idx = np.arange(a, min(a + GATHER * 2, n))
+        e = _spike_sizes(x, idx)
+        for j in range(k):
+            i = idx[e[:, j] > limit[j]]  # few: the steps only there
+            if len(i):
+                prev2, prev, nxt, nxt2 = (floats(x[_mirrored(i + d, n)], 0, len(i))[:, j]
+                                          for d in (-2, -1, 1, 2))
+                steps = np.maximum.reduce([np.abs(nxt - prev), np.abs(nxt2 - nxt),
+                                           np.abs(prev - prev2)])
+                found.append(i[e[i - a, j] > SPIKE_ISOLATION * steps])
+    return np.unique(np.concatenate(found))
+
+
+def _spike_sizes(x, idx: np.ndarray) -> np.ndarray:
+    """``|e|`` (see :func:`isolated_outliers`) at the sorted sample indices ``idx``, every
+    column: a slice where they are consecutive, else a gather of them and their neighbours.
+    ``e = (x_prev + x_next) * -0.5 + x``, the order of operations it always had."""
+    n = len(x)
+    if len(idx) and idx[-1] - idx[0] == len(idx) - 1:  # consecutive: one slice, with margins
+        a, b = int(idx[0]), int(idx[-1]) + 1
+        lo, hi = max(a - 1, 0), min(b + 1, n)
+        rows = floats(x, lo, hi)
+        c = rows[a - lo:b - lo]
+        prev = np.concatenate([rows[1:2], rows[:b - 1]]) if a == 0 else rows[:b - lo - 1]
+        nxt = rows[a - lo + 1:]
+        if b == n:
+            nxt = np.concatenate([nxt, rows[-2:-1]])
+    else:
+        c = floats(x[idx], 0, len(idx))
+        prev = floats(x[_mirrored(idx - 1, n)], 0, len(idx))
+        nxt = floats(x[_mirrored(idx + 1, n)], 0, len(idx))
+    e = prev + nxt
+    e *= -0.5
+    e += c
+    return np.abs(e, out=e)
 
 
 def _mirrored(k: np.ndarray, n: int) -> np.ndarray:
@@ -234,57 +245,37 @@ def _mirrored(k: np.ndarray, n: int) -> np.ndarray:
     return np.where(k > n - 1, 2 * (n - 1) - k, k)
 
 
-def without_outliers(x: np.ndarray, outliers: np.ndarray) -> np.ndarray:
-    """``x`` with each outlier replaced by the mean of its neighbours (``x`` itself if none):
-    what the detector's statistic is computed on."""
-    if len(outliers) == 0:
-        return x
-    n = len(x)
-    out = np.array(x, dtype=np.float64)
-    lo = np.where(outliers > 0, outliers - 1, outliers + 1)
-    hi = np.where(outliers < n - 1, outliers + 1, outliers - 1)
-    out[outliers] = 0.5 * (out[lo] + out[hi])
-    return out
-
-
-def glitches(outliers: np.ndarray, acc: np.ndarray, clean: np.ndarray, stat: np.ndarray,
+def glitches(outliers: np.ndarray, acc, clean: CleanRows, at_outliers: np.ndarray,
              threshold: float) -> np.ndarray:
     """The outliers that cannot be the motion itself: those in still surroundings (the
-    statistic, computed without them, is below the threshold there) and those outside the range
-    the rest of the signal spans, widened by that span (1e12 in a 2 g signal). A single-sample
-    spike during a turn is as often a knock as a glitch (the Xsens reference recording has
-    three); it is still left out of the statistic, but not reported as a fault."""
+    statistic, computed without them and ``at_outliers`` there, is below the threshold) and
+    those outside the range the rest of the signal spans, widened by that span (1e12 in a 2 g
+    signal). A single-sample spike during a turn is as often a knock as a glitch (the Xsens
+    reference recording has three); it is still left out of the statistic, but not reported as
+    a fault."""
     if len(outliers) == 0:
         return outliers
-    lo, hi = clean.min(axis=0), clean.max(axis=0)
+    lo, hi = column_extremes(clean)
     span = hi - lo
-    v = acc[outliers]
+    v = np.asarray(acc[outliers])
     absurd = np.any((v < lo - span) | (v > hi + span) | ~np.isfinite(v), axis=1)
-    return outliers[(stat[outliers] < threshold) | absurd]
+    return outliers[(at_outliers < threshold) | absurd]
 
 
-def outlier_note(outliers: np.ndarray, t: np.ndarray, acc: np.ndarray) -> str | None:
+def outlier_note(outliers: np.ndarray, t, acc) -> str | None:
     """The outliers named for the user (sample, time, value), or None when there are none."""
     if len(outliers) == 0:
         return None
-    shown = ", ".join(f"sample {i} (t = {t[i]:.3f} s, {np.array2string(acc[i], precision=4)})"
-                      for i in outliers[:5])
+    first = outliers[:5]
+    times, values = np.asarray(t[first]), np.asarray(acc[first])
+    shown = ", ".join(f"sample {i} (t = {ti:.3f} s, {np.array2string(v, precision=4)})"
+                      for i, ti, v in zip(first, times, values))
     more = f" and {len(outliers) - 5} more" if len(outliers) > 5 else ""
     one = len(outliers) == 1
     return (f"{len(outliers)} isolated outlier sample{'' if one else 's'} in the accelerometer, "
             f"far from both neighbours: {shown}{more}; the static detector ignored "
             f"{'it' if one else 'them'} and left {'it' if one else 'them'} out of every still "
             "block (a logger or transmission glitch?)")
-
-
-def still_blocks(stat: np.ndarray, threshold: float, min_len: int, outliers: np.ndarray
-                 ) -> np.ndarray:
-    """Runs of ``stat < threshold`` at least ``min_len`` long; an outlier sample ends a run."""
-    mask = stat < threshold
-    if len(outliers):
-        mask[outliers] = False
-    runs = runs_of_true(mask)
-    return runs[(runs[:, 1] - runs[:, 0]) >= min_len].astype(np.int64).reshape(-1, 2)
 
 
 def initial_level(acc: np.ndarray, t: np.ndarray, init: tuple[float, float], statistic: str,
@@ -299,12 +290,14 @@ def initial_level(acc: np.ndarray, t: np.ndarray, init: tuple[float, float], sta
     has the quiet level of the whole recording to fall back on) ``(None, None, note)``.
     """
     t0, t1 = init
-    increasing = bool(len(t) > 1 and np.all(np.diff(t) > 0))
+    start = value_at(t, 0)
+    increasing = strictly_increasing(t)
     if increasing:  # the interval is a slice: no masks the length of the recording
-        i0, i1 = np.searchsorted(t, [t[0] + t0, t[0] + t1], side="left")
+        i0, i1 = search_sorted(t, [start + t0, start + t1], side="left")
         samples = acc[i0:i1]
     else:
-        samples = acc[(t >= t[0] + t0) & (t < t[0] + t1)]
+        samples = rows_where(acc, lambda a, b: (floats(t, a, b) >= start + t0)
+                             & (floats(t, a, b) < start + t1))
     if len(samples) < 10:
         if not slide:
             return None, None, None
@@ -333,29 +326,31 @@ def initial_level(acc: np.ndarray, t: np.ndarray, init: tuple[float, float], sta
     return s2, (float(t0), float(t1)), note
 
 
-def detect_static(acc: np.ndarray, t: np.ndarray, settings: DetectSettings = Settings().detect,
+def detect_static(acc, t, settings: DetectSettings = Settings().detect,
                   source: str = "session") -> Detection:
     """Mark where the sensor lies still (M1) and cut the still samples into blocks, at the
     given values; a value left ``None`` is the thesis's (choosing them from the data is
-    :func:`imucal.stages.detect_tuning.tune_detector`)."""
+    :func:`imucal.stages.detect_tuning.tune_detector`). The blocks are runs of ``s2 <
+    threshold`` at least ``min_len`` long, an outlier sample ending a run."""
     n = len(acc)
-    rate, _ = sample_rate(t)
+    rate = sample_rate(t)
     window = settings.window or thesis_window(rate)
     min_len = settings.min_len or thesis_min_len(rate)
     k = THESIS_K if settings.k is None else float(settings.k)
     check_window(window, n, source)
     outliers = isolated_outliers(acc)
-    clean = without_outliers(acc, outliers)
-    stat = rolling_statistic(clean, window, settings.statistic)
+    clean = CleanRows(acc, outliers)
     s2_init, init, note = initial_level(clean, t, settings.init or THESIS_INIT,
                                         settings.statistic, source)
     threshold = k * s2_init
-    blocks = still_blocks(stat, threshold, min_len, outliers)
-    return Detection(statistic=stat, threshold=threshold, s2_init=s2_init, blocks=blocks,
+    stat = Statistic(clean, window, settings.statistic)
+    runs = streamed_still_runs(stat, threshold, None, outliers)
+    blocks = runs[(runs[:, 1] - runs[:, 0]) >= min_len].astype(np.int64).reshape(-1, 2)
+    named = glitches(outliers, acc, clean, values_at(stat, outliers), threshold)
+    return Detection(threshold=threshold, s2_init=s2_init, blocks=blocks,
                      means=block_means(acc, blocks), window=window, min_len=min_len, init=init,
-                     k=k, note=note, outliers=outliers,
-                     outlier_note=outlier_note(glitches(outliers, acc, clean, stat, threshold),
-                                               t, acc))
+                     k=k, note=note, outliers=outliers, outlier_note=outlier_note(named, t, acc),
+                     statistic_kind=settings.statistic)
 
 
 def check_window(window: int, n: int, source: str) -> None:
@@ -367,15 +362,17 @@ def check_window(window: int, n: int, source: str) -> None:
                           f"({window}); record longer", source=source, field="accelerometer")
 
 
-def _first_still_interval(acc: np.ndarray, t: np.ndarray, t0: float, t1: float, f0: float,
+def _first_still_interval(acc, t, t0: float, t1: float, f0: float,
                           source: str) -> tuple[np.ndarray, tuple[float, float]]:
     """The first interval as long as ``t0``-``t1`` whose mean does not wander, sliding by a
     part at a time: any still stretch tells the noise level (a loop over candidate intervals,
     which stops at the first still pose, not over samples)."""
     length = t1 - t0
-    starts = np.arange(t0 + length / INIT_PARTS, t[-1] - t[0] - length, length / INIT_PARTS)
-    lo = np.searchsorted(t, t[0] + starts, side="left")
-    hi = np.searchsorted(t, t[0] + starts + length, side="left")
+    first = value_at(t, 0)
+    starts = np.arange(t0 + length / INIT_PARTS, value_at(t, -1) - first - length,
+                       length / INIT_PARTS)
+    lo = search_sorted(t, first + starts, side="left")
+    hi = search_sorted(t, first + starts + length, side="left")
     for s, i0, i1 in zip(starts, lo, hi):
         if i1 - i0 >= 10 and wander_ratio(acc[i0:i1]) <= INIT_MAX_F:
             return acc[i0:i1], (round(float(s), 3), round(float(s + length), 3))

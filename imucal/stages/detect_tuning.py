@@ -25,9 +25,10 @@ window plus its shortest block). So, for every value the user left unset:
   see a turn's slow start too late) and never below MIN_WINDOW samples (the noise); the
   shortest block keeps the thesis's ratio to the window.
 
-M1 is computed once per window; the thresholds are tried on its per-bin maximum (a few samples
-a bin), so a scan costs a few passes over the recording, and the chosen setting is redone at
-full resolution. What was tried and why one was taken goes in :class:`Tuning`.
+M1 is computed once per window tried (:func:`~imucal.stages.detect_runs.window_pass`, a span at
+a time: its values are never all kept); the thresholds are tried on its per-bin maximum (a few
+samples a bin), and the chosen setting is redone at full resolution in one more pass. What was
+tried and why one was taken goes in :class:`Tuning`.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from collections.abc import Callable
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.numerics.windows import CHUNK_ROWS, runs_of_true
+from imucal.numerics.rows import RowRange
 from imucal.settings import THESIS_INIT, DetectSettings
 from imucal.stages.detect import (
     INIT_MAX_F,
@@ -52,13 +53,13 @@ from imucal.stages.detect import (
     initial_level,
     isolated_outliers,
     outlier_note,
-    rolling_statistic,
     sample_rate,
     thesis_window,
     wander_ratio,
-    without_outliers,
 )
+from imucal.stages.detect_runs import WindowPass, still_runs, streamed_still_runs, window_pass
 from imucal.stages.detect_score import MIN_ORIENTATIONS, Blocks, Prefix, Scorer
+from imucal.stages.detect_stat import CleanRows, Statistic
 
 K_GRID = tuple(2.0 ** (i / 2) for i in range(19))  # 1 ... 512, a factor sqrt(2) apart
 MIN_WINDOW = 11  # samples: below, a still window's variance scatters by more than +-45 %
@@ -82,30 +83,32 @@ def local_factor(window: int, statistic: str = "thesis") -> float:
     return f * f if statistic == "thesis" else f
 
 
-def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
-                  acc_unit: str = "g", g_in: float = 1.0, source: str = "session") -> Detection:
+def tune_detector(acc, t, settings: DetectSettings, *, acc_unit: str = "g", g_in: float = 1.0,
+                  source: str = "session") -> Detection:
     """Detect the still blocks with the values the user gave and the rest chosen from the
-    data (see the module's docstring); the choice is recorded in ``Detection.tuning``."""
+    data (see the module's docstring); the choice is recorded in ``Detection.tuning``.
+
+    ``acc`` and ``t`` are read a block of rows at a time (slices and gathers): M1 is never
+    held whole, the outliers are a few indices and the scan's bins a few samples each."""
     n = len(acc)
-    rate, _ = sample_rate(t)
+    rate = sample_rate(t)
     windows = [settings.window] if settings.window else candidate_windows(rate, n)
     check_window(min(windows), n, source)
     outliers = isolated_outliers(acc)
-    clean = without_outliers(acc, outliers)
-
-    stats: dict[int, np.ndarray] = {}
-    ref, init, note, reference, (quiet, wq) = _reference(clean, t, windows, stats, settings,
-                                                         source)
+    clean = CleanRows(acc, outliers)
     # An explicit k is the thesis's detector: s2 < k s2_init and nothing else.
     ks = K_GRID if settings.k is None else (float(settings.k),)
+    passes: dict[int, WindowPass] = {}
+    ref, init, note, reference, (quiet, wq) = _reference(clean, t, windows, passes, ks, settings,
+                                                         source)
     local = settings.statistic if settings.k is None else None  # local ends, for M1 as used
     scorer = Scorer(acc_unit, g_in)
     tried: list[tuple[Candidate, Blocks]] = []
     for w in sorted(windows, reverse=True):
-        if w not in stats:
-            stats[w] = _statistic(clean, w, settings.statistic)
+        if w not in passes:
+            passes[w] = _pass(clean, w, settings.statistic, ks, ref)
         min_len = settings.min_len or min_len_for(w)
-        found = _scan(acc, stats[w], ref, ks, w, min_len, outliers, local, scorer)
+        found = _scan(acc, passes[w], ref, ks, min_len, outliers, local, scorer)
         tried += found
         if _fits_the_holds(found, w):
             break
@@ -114,16 +117,18 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
     best = cands[chosen]
 
     # The chosen setting at full resolution (the scan ran on bins).
-    stat = stats[best.window]
+    threshold = best.k * ref
     q = local_factor(best.window, local) if local else None
-    runs = still_runs(stat, best.k * ref, q, outliers)
+    runs = streamed_still_runs(Statistic(clean, best.window, settings.statistic), threshold, q,
+                               outliers, passes[best.window].still_samples(threshold))
     lengths = runs[:, 1] - runs[:, 0]
     exact = Blocks.exact(acc, runs[lengths >= best.min_len])
     blocks = exact.blocks
     cands[chosen] = scorer.candidate(best.window, best.min_len, best.k, exact, force=True)
     reason = why(cands[chosen])
     _refuse_never_still(clean, blocks, source)
-    short, min_hold = _short_holds(stats, best.k * ref, local, outliers, settings.min_len)
+    short, min_hold = _short_holds(clean, passes, settings, threshold, local, outliers,
+                                   (best.window, runs))
     tuned = tuple(name for name, v in (("window", settings.window), ("min_len", settings.min_len),
                                        ("k", settings.k)) if v is None)
     tuning = Tuning(
@@ -131,27 +136,25 @@ def tune_detector(acc: np.ndarray, t: np.ndarray, settings: DetectSettings, *,
         candidates=tuple(cands), chosen=chosen, reason=reason,
         hold_s=float((np.median(exact.counts) + best.window) / rate) if len(blocks) else None,
         short_holds=short, min_hold_s=min_hold / rate)
-    return Detection(statistic=stat, threshold=best.k * ref, s2_init=ref, blocks=blocks,
-                     means=exact.means, window=best.window, min_len=best.min_len, init=init,
-                     k=best.k, note=note, outliers=outliers,
-                     outlier_note=outlier_note(glitches(outliers, acc, clean, stat,
-                                                        best.k * ref), t, acc),
-                     tuning=tuning,
-                     orientations=cands[chosen].orientations)
+    named = glitches(outliers, acc, clean, passes[best.window].at_outliers, threshold)
+    return Detection(threshold=threshold, s2_init=ref, blocks=blocks, means=exact.means,
+                     window=best.window, min_len=best.min_len, init=init, k=best.k, note=note,
+                     outliers=outliers, outlier_note=outlier_note(named, t, acc), tuning=tuning,
+                     orientations=cands[chosen].orientations, statistic_kind=settings.statistic)
 
 
-def _reference(clean: np.ndarray, t: np.ndarray, windows: list[int],
-               stats: dict[int, np.ndarray], settings: DetectSettings, source: str
+def _reference(clean: CleanRows, t, windows: list[int], passes: dict[int, WindowPass],
+               ks: tuple[float, ...], settings: DetectSettings, source: str
                ) -> tuple[float, tuple[float, float] | None, str | None, str, tuple[float, int]]:
     """The reference level s2_init, the interval it came from, a note for the user, where it
-    came from in words, and the quiet level with its window. M1 goes into ``stats``: over the
-    shortest window when the quiet level is the reference (short windows fit in short holds),
-    else over the thesis's, which the scan needs first anyway."""
+    came from in words, and the quiet level with its window. M1's pass goes into ``passes``:
+    over the shortest window when the quiet level is the reference (short windows fit in short
+    holds), else over the thesis's, which the scan needs first anyway."""
     ref, init, note = initial_level(clean, t, settings.init or THESIS_INIT, settings.statistic,
                                     source, slide=settings.init is not None)
     w = min(windows) if ref is None else max(windows)
-    stats[w] = _statistic(clean, w, settings.statistic)
-    quiet = quiet_level(stats[w])
+    passes[w] = _pass(clean, w, settings.statistic, ks, ref)
+    quiet = quiet_level(passes[w].sample)
     if ref is not None:
         return (ref, init, note, f"the initial still interval {init[0]:g}-{init[1]:g} s",
                 (quiet, w))
@@ -166,20 +169,28 @@ def _reference(clean: np.ndarray, t: np.ndarray, windows: list[int],
                                f"{w}-sample windows of the whole recording"), (quiet, w)
 
 
-def _statistic(x: np.ndarray, window: int, statistic: str) -> np.ndarray:
-    """M1; a variance too large for floating point is infinite: not still, and said quietly."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        return rolling_statistic(x, window, statistic)
+def _pass(clean: CleanRows, window: int, statistic: str, ks: tuple[float, ...],
+          ref: float | None) -> WindowPass:
+    """One window's pass over M1, counting the still samples at each threshold when the
+    reference level is known."""
+    thresholds = None if ref is None else np.array([k * ref for k in ks])
+    return window_pass(Statistic(clean, window, statistic), max(1, window // BIN_SAMPLES),
+                       clean.outliers, thresholds)
 
 
-def _short_holds(stats: dict[int, np.ndarray], threshold: float, local: str | None,
-                 outliers: np.ndarray, min_len: int | None) -> tuple[int, int]:
+def _short_holds(clean: CleanRows, passes: dict[int, WindowPass], settings: DetectSettings,
+                 threshold: float, local: str | None, outliers: np.ndarray,
+                 chosen: tuple[int, np.ndarray]) -> tuple[int, int]:
     """How many still stretches, seen through the shortest window tried, were too short to
     make a block there, and the shortest a block can come from (``min_len`` still windows:
-    ``min_len + w - 1`` samples)."""
-    w = min(stats)
-    shortest = min_len or min_len_for(w)
-    runs = still_runs(stats[w], threshold, local_factor(w, local) if local else None, outliers)
+    ``min_len + w - 1`` samples). The chosen window's runs serve when it is the shortest."""
+    w = min(passes)
+    shortest = settings.min_len or min_len_for(w)
+    runs = chosen[1]
+    if w != chosen[0]:
+        runs = streamed_still_runs(Statistic(clean, w, settings.statistic), threshold,
+                                   local_factor(w, local) if local else None, outliers,
+                                   passes[w].still_samples(threshold))
     lengths = runs[:, 1] - runs[:, 0]
     return int(np.sum((lengths >= 2) & (lengths < shortest))), shortest + w - 1
 
@@ -198,83 +209,27 @@ def min_len_for(window: int) -> int:
     return max(1, int(round(window * THESIS_MIN_LEN_S / THESIS_WINDOW_S)))
 
 
-def quiet_level(stat: np.ndarray) -> float:
-    """The noise level of the quietest stretches: a low quantile of M1 over short windows.
-    Exact zeros (a flat, clipped or quantised axis) say nothing about the noise and are
-    left out; a quantile is not moved by a few wild windows."""
-    stride = max(1, len(stat) // 500_000)  # a long recording: every stride-th window
-    s = stat[::stride]
-    s = s[s > 0]
+def quiet_level(sample: np.ndarray) -> float:
+    """The noise level of the quietest stretches: a low quantile of M1 over short windows, from
+    every stride-th window of a long recording (:class:`WindowPass.sample`). Exact zeros (a
+    flat, clipped or quantised axis) say nothing about the noise and are left out; a quantile
+    is not moved by a few wild windows."""
+    s = sample[sample > 0]
     return float(np.quantile(s, QUIET_QUANTILE)) if len(s) else 0.0
 
 
-def still_runs(values: np.ndarray, threshold: float, local: float | None,
-               outliers: np.ndarray, per: int = 1) -> np.ndarray:
-    """[start, end) runs (in units of ``per`` samples) where ``values < threshold`` and, with
-    ``local``, where each such stretch's values stay under ``local`` times their median.
-    Outlier samples end a run."""
-    mask = values < threshold
-    if len(outliers):
-        mask[outliers // per] = False
-    runs = runs_of_true(mask)
-    if local is None or len(runs) == 0:
-        return runs
-    median = _run_medians(values, runs)
-    lengths = runs[:, 1] - runs[:, 0]
-    ends = np.cumsum(lengths)
-    i = 0
-    while i < len(runs):  # runs of runs of about CHUNK_ROWS samples: small index arrays
-        j = max(i + 1, int(np.searchsorted(ends, ends[i] - lengths[i] + CHUNK_ROWS, "right")))
-        idx = _run_indices(runs[i:j])
-        mask[idx] = values[idx] < local * np.repeat(median[i:j], lengths[i:j])
-        i = j
-    return runs_of_true(mask)
-
-
-def _run_indices(runs: np.ndarray, step: int = 1) -> np.ndarray:
-    """Every ``step``-th index of each [start, end) run, concatenated in order."""
-    lengths = -(-(runs[:, 1] - runs[:, 0]) // step)
-    offsets = np.repeat(runs[:, 0] - (np.cumsum(lengths) - lengths) * step, lengths)
-    return offsets + np.arange(int(lengths.sum())) * step
-
-
-def _run_medians(values: np.ndarray, runs: np.ndarray) -> np.ndarray:
-    """The median of ``values`` over each run, from at most about 200,000 of them (M1 is
-    smooth over a window: every step-th value tells its median as well)."""
-    step = max(1, int((runs[:, 1] - runs[:, 0]).sum()) // 200_000)
-    lengths = -(-(runs[:, 1] - runs[:, 0]) // step)
-    v = values[_run_indices(runs, step)]
-    # One sort by run, then by value: the run's number plus its log value squeezed into
-    # [0, 0.5) (an argsort of floats is several times faster than a lexsort of two keys).
-    logv = np.log(np.maximum(v, np.finfo(float).tiny))
-    lo, hi = float(logv.min()), float(logv.max())
-    key = (logv - lo) * (0.5 / max(hi - lo, 1e-300))
-    key += np.repeat(np.arange(len(runs), dtype=float), lengths)
-    order = np.argsort(key)
-    first = np.cumsum(lengths) - lengths
-    return v[order[first + (lengths - 1) // 2]]
-
-
-def _scan(acc: np.ndarray, stat: np.ndarray, ref: float, ks: tuple[float, ...], window: int,
-          min_len: int, outliers: np.ndarray, local: str | None, scorer: Scorer
+def _scan(acc, wp: WindowPass, ref: float, ks: tuple[float, ...], min_len: int,
+          outliers: np.ndarray, local: str | None, scorer: Scorer
           ) -> list[tuple[Candidate, Blocks]]:
     """Every k at one window, on bins of ``window / BIN_SAMPLES`` samples: a bin is still when
     its largest M1 is, so the blocks are the full-resolution ones trimmed by less than a bin
     at each end."""
-    n = len(acc)
-    d = max(1, window // BIN_SAMPLES)
-    nb = -(-n // d)
-    # = stat padded with inf to whole bins, reshaped and maxed: with no padded copy of stat.
-    full = n // d
-    binmax = np.empty(nb)
-    binmax[:full] = stat[:full * d].reshape(full, d).max(axis=1)
-    if nb > full:
-        binmax[full] = np.concatenate([stat[full * d:], [np.inf]]).max()
+    d, window = wp.per, wp.window
     pre = Prefix(acc, d)
     q = local_factor(window, local) if local else None
     out = []
     for k in ks:
-        runs = still_runs(binmax, k * ref, q, outliers, per=d)
+        runs = still_runs(wp.binmax, k * ref, q, outliers, per=d)
         runs = runs[(pre.count[runs[:, 1]] - pre.count[runs[:, 0]]) >= min_len]
         blk = Blocks.of(pre, runs)
         out.append((scorer.candidate(window, min_len, k, blk), blk))
@@ -330,13 +285,13 @@ def choose(cands: list[Candidate]) -> tuple[int, Callable[[Candidate], str]]:
     return chosen, why
 
 
-def _refuse_never_still(clean: np.ndarray, blocks: np.ndarray, source: str) -> None:
+def _refuse_never_still(clean: CleanRows, blocks: np.ndarray, source: str) -> None:
     """Blocks whose mean wanders are slow motion, not stillness; when even the longest ones
     do, the recording has no still period at all."""
     if len(blocks) == 0:
         return
     longest = blocks[np.argsort(blocks[:, 0] - blocks[:, 1])[:5]]
-    f = [wander_ratio(clean[a:b]) for a, b in longest]
+    f = [wander_ratio(RowRange(clean, a, b)) for a, b in longest]
     if min(f) > INIT_MAX_F:
         raise ImucalError(f"the accelerometer is never still: even its quietest stretches drift "
                           f"(their means wander {min(f):.0f}x more than the noise allows); "

@@ -24,10 +24,12 @@ import numpy as np
 
 from imucal.numerics.allan import AllanAccumulator, AllanCurve, NoiseFit, Rows, fit_noise
 from imucal.numerics.allan import pooled_allan_variance as _pooled
-from imucal.session import median_step
+from imucal.numerics.rows import search_sorted
+from imucal.session import chunked_median
 from imucal.stages.apply import CalibratedSignals
 
 AXES = ("x", "y", "z")
+STEP_ROWS = 1 << 16  # times read at once for the steps inside the blocks
 MAX_STILL_DRIFT = 0.01  # of |g|: above it the recording is not still (see StreamingNoise)
 # unit of the signal -> (white noise density, random walk) units
 DENSITY_UNITS = {
@@ -101,8 +103,12 @@ class RowSource(Protocol):
 
 
 def still_noise(signals: CalibratedSignals | RowSource,
-                block_times: np.ndarray) -> NoiseReport | None:
-    """Noise figures of the calibrated signals inside the still blocks ``[t_start, t_end)``."""
+                 block_times: np.ndarray) -> NoiseReport | None:
+    """Noise figures of the calibrated signals inside the still blocks ``[t_start, t_end)``.
+
+    The time arrays are read through slices and gathers (the blocks' edges are searched a
+    block of times at a time); a gyroscope on the accelerometer's own clock shares its search
+    and its rate."""
     block_times = np.asarray(block_times, dtype=float).reshape(-1, 2)
     if len(block_times) == 0 or len(signals.t_acc) < 2:
         return None
@@ -110,25 +116,53 @@ def still_noise(signals: CalibratedSignals | RowSource,
     source = (f"still blocks of the calibration: {len(block_times)} blocks, "
               f"{lengths.sum():.1f} s in all, longest {lengths.max():.2f} s; overlapping Allan "
               f"variance within each block, pooled over the blocks")
-    acc = _blocks_noise("accelerometer", signals.acc_unit, signals.t_acc, signals.acc,
-                        block_times)
+    clock = _BlockClock(signals.t_acc, block_times)
+    acc = _blocks_noise("accelerometer", signals.acc_unit, clock, signals.acc)
     gyro = None
     if signals.gyro is not None and signals.t_gyro is not None and len(signals.t_gyro) > 1:
-        gyro = _blocks_noise("gyroscope", "rad/s", signals.t_gyro, signals.gyro, block_times)
+        if signals.t_gyro is not signals.t_acc:
+            clock = _BlockClock(signals.t_gyro, block_times)
+        gyro = _blocks_noise("gyroscope", "rad/s", clock, signals.gyro)
     return NoiseReport(accelerometer=acc, gyroscope=gyro, source=source)
 
 
-def _blocks_noise(sensor: str, unit: str, t: np.ndarray, x: np.ndarray | Rows,
-                  block_times: np.ndarray) -> SensorNoise | None:
-    lo = np.searchsorted(t, block_times[:, 0], side="left")
-    hi = np.searchsorted(t, block_times[:, 1], side="left")
-    curve = _pooled(x, lo, hi)
+class _BlockClock:
+    """The still blocks' ``[lo, hi)`` sample ranges on one clock and the rate inside them (the
+    median step there: a recording's gaps lie elsewhere), found once per clock."""
+
+    def __init__(self, t, block_times: np.ndarray):
+        self.t = t
+        self.lo = search_sorted(t, block_times[:, 0], side="left")
+        self.hi = search_sorted(t, block_times[:, 1], side="left")
+        self._rate: float | None = None
+
+    @property
+    def rate(self) -> float:
+        if self._rate is None:  # np.median of the blocks' steps to the bit, not all at once
+            self._rate = float(1.0 / chunked_median(self._steps, int(np.sum(
+                np.maximum(self.hi - self.lo - 1, 0)))))
+        return self._rate
+
+    def _steps(self):
+        """The blocks' steps (``np.diff`` within each), about ``STEP_ROWS`` at a time: the
+        times of a run of blocks read at once, their steps put end to end."""
+        lo, hi = self.lo, self.hi
+        i = 0
+        while i < len(lo):
+            j = i + max(1, int(np.searchsorted(hi[i:], lo[i] + STEP_ROWS, side="right")))
+            a, b = int(lo[i]), int(hi[j - 1])
+            t = np.asarray(self.t[a:b], dtype=np.float64)
+            yield np.concatenate([np.diff(t[p - a:q - a]) for p, q in zip(lo[i:j], hi[i:j])
+                                  if q - p > 1] or [np.zeros(0)])
+            i = j
+
+
+def _blocks_noise(sensor: str, unit: str, clock: _BlockClock, x: np.ndarray | Rows
+                  ) -> SensorNoise | None:
+    curve = _pooled(x, clock.lo, clock.hi)
     if len(curve.lags) == 0:
         return None
-    # The rate inside the blocks: the median step there (a recording's gaps lie elsewhere).
-    # np.median of the blocks' steps to the bit, without them all at once.
-    step = median_step(t, [(a, b) for a, b in zip(lo, hi) if b - a > 1])
-    return sensor_noise(sensor, unit, float(1.0 / step), curve)
+    return sensor_noise(sensor, unit, clock.rate, curve)
 
 
 class StreamingNoise:

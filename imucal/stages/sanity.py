@@ -23,8 +23,9 @@ import dataclasses
 import numpy as np
 
 from imucal.errors import ImucalError, plural
+from imucal.numerics.order_stats import ranked_values
 from imucal.numerics.windows import block_means
-from imucal.session import Session
+from imucal.session import MEDIAN_SAMPLE, MEDIAN_SMALL, Session, diff_chunks
 from imucal.stages.detect import Detection
 from imucal.warning import RunWarning
 
@@ -166,13 +167,47 @@ def _axis_offset(x: np.ndarray, t: np.ndarray, what: str, file: str
 # --- time gaps ---------------------------------------------------------------------------------
 
 
-def time_gaps(t: np.ndarray) -> np.ndarray:
+def time_gaps(t) -> np.ndarray:
     """Indices ``i`` where ``t[i + 1] - t[i]`` is a gap (GAP_FACTOR times the 99th-percentile
-    step)."""
+    step), ``t`` read a block at a time: its smallest and largest step first (a steady clock,
+    whose largest step is not GAP_FACTOR times its smallest, has no gap, since the percentile
+    is at least the smallest step), else numpy's percentile found exactly
+    (:func:`_step_quantile`) and the steps beyond it."""
     if t is None or len(t) < 3:
         return np.zeros(0, np.int64)
-    step = np.diff(t)
-    return np.flatnonzero(step > GAP_FACTOR * np.quantile(step, 0.99))
+    ranges = [(0, len(t))]
+    steps = diff_chunks(t, ranges)
+    lo, hi = np.inf, -np.inf
+    for d in steps():
+        lo, hi = np.minimum(lo, d.min()), np.maximum(hi, d.max())
+    if not hi > GAP_FACTOR * lo:  # (a NaN step: numpy's percentile is NaN, no gap either)
+        return np.zeros(0, np.int64)
+    limit = GAP_FACTOR * _step_quantile(steps, len(t) - 1, 0.99)
+    found, p = [np.zeros(0, np.int64)], 0
+    for d in steps():
+        found.append(np.flatnonzero(d > limit) + p)
+        p += len(d)
+    return np.concatenate(found)
+
+
+def _step_quantile(steps, n: int, q: float) -> float:
+    """``np.quantile`` of the ``n`` steps ``steps()`` yields, to the bit: its two order
+    statistics (:func:`imucal.numerics.order_stats.ranked_values`; a copy below MEDIAN_SMALL
+    steps or where the bracket misses), interpolated as numpy does (index ``(n - 1) q``,
+    ``a + (b - a) g``, from ``b`` when ``g >= 0.5``)."""
+    v = (n - 1) * float(q)
+    prev = int(np.floor(v))
+    got = None
+    if n >= MEDIAN_SMALL:
+        got = ranked_values(steps, n, [[min(prev, n - 1), min(prev + 1, n - 1)]], MEDIAN_SAMPLE)
+    if got is None:
+        return float(np.quantile(np.concatenate(list(steps())), q))
+    a, b = got[0]
+    if v >= n - 1:  # numpy takes the largest value for both
+        a = b
+    g = v - np.floor(v)
+    diff = b - a
+    return float(b - diff * (1 - g) if g >= 0.5 else a + diff * g)
 
 
 def gap_warnings(session: Session) -> list[RunWarning]:
@@ -197,9 +232,10 @@ def gap_warnings(session: Session) -> list[RunWarning]:
     return out
 
 
-def split_at_gaps(det: Detection, acc: np.ndarray, t: np.ndarray) -> Detection:
+def split_at_gaps(det: Detection, acc, t) -> Detection:
     """Still blocks cut at the accelerometer's time gaps (the device may have moved while
-    nothing was recorded); a piece shorter than the detector's minimum block is dropped."""
+    nothing was recorded); a piece shorter than the detector's minimum block is dropped. The
+    signals are read a block of rows at a time (:func:`time_gaps`, :func:`block_means`)."""
     gaps = time_gaps(t) + 1  # a gap lies just before these samples
     if not len(gaps) or not len(det.blocks):
         return det

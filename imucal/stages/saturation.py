@@ -4,38 +4,56 @@ A clipped axis has no variance, so a saturated stretch can pass the static detec
 mean is wrong. Blocks holding saturated samples are excluded and reported (method.md §1 gives
 no rule; this is what a user of a real product expects).
 
-The signal is read a chunk of rows at a time (issue 12): the comparisons and the run edges of
-one chunk at once, never a mask or a cumulative sum the length of the signal, unless the
-caller asks for the mask (:func:`saturated_mask`).
+The signal is read a chunk of rows at a time through row slices (issue 12): the comparisons and
+the run edges of one chunk at once, never a mask or a cumulative sum the length of the signal,
+unless the caller asks for the mask (:func:`saturated_mask`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from imucal.numerics.windows import runs_of_true
+from imucal.numerics.rows import column_extremes
 
 CHUNK_ROWS = 1 << 18
 
 
-def saturated_runs(x: np.ndarray, min_run: int = 5, chunk: int = CHUNK_ROWS) -> np.ndarray:
+def saturated_runs(x, min_run: int = 5, chunk: int = CHUNK_ROWS) -> np.ndarray:
     """(R, 2) sorted, disjoint ``[start, end)`` runs of the samples where an axis sits at its
     extreme value for ``min_run`` or more samples in a row (any axis, either extreme).
 
     Noise makes an unclipped signal touch its own maximum once or twice; a clipped one sits at
-    it. Each axis's runs at each extreme are found a chunk at a time
-    (:func:`imucal.numerics.windows.runs_of_true`) and joined where they meet at a chunk's
-    edge, so a run is measured whole before the ``min_run`` test.
+    it. Two passes over ``x``, a chunk of rows at a time (row slices only): its extremes, then
+    where each axis equals them (a few indices, unless clipped), cut into runs and joined where
+    they meet at a chunk's edge, so a run is measured whole before the ``min_run`` test.
     """
-    found = [np.zeros((0, 2), np.int64)]
-    for axis in range(x.shape[1]):
-        col = x[:, axis]
-        for extreme in (col.max(), col.min()):
-            parts = [runs_of_true(col[c0:c0 + chunk] == extreme) + c0
-                     for c0 in range(0, len(col), chunk)]
-            runs = _union(np.concatenate([np.zeros((0, 2), np.int64), *parts]))
-            found.append(runs[(runs[:, 1] - runs[:, 0]) >= min_run])
+    k = int(x.shape[1])
+    empty = np.zeros((0, 2), np.int64)
+    if len(x) == 0:
+        return empty
+    lo, hi = column_extremes(x, chunk)
+    parts: list[list[np.ndarray]] = [[empty] for _ in range(2 * k)]
+    for c0 in range(0, len(x), chunk):
+        rows = np.asarray(x[c0:c0 + chunk])
+        for e, extreme in enumerate((hi, lo)):
+            at = np.flatnonzero(rows == extreme)  # every axis at once: (row, axis) flattened
+            row, axis_of = at // k, at % k
+            for axis in range(k):
+                parts[2 * axis + e].append(_runs_at(row[axis_of == axis]) + c0)
+    found = [empty]
+    for p in parts:
+        runs = _union(np.concatenate(p))
+        found.append(runs[(runs[:, 1] - runs[:, 0]) >= min_run])
     return _union(np.concatenate(found))
+
+
+def _runs_at(idx: np.ndarray) -> np.ndarray:
+    """[start, end) runs of consecutive sorted indices (``runs_of_true`` of their mask)."""
+    if len(idx) == 0:
+        return np.zeros((0, 2), np.int64)
+    breaks = np.flatnonzero(np.diff(idx) > 1)
+    return np.column_stack([idx[np.r_[0, breaks + 1]], idx[np.r_[breaks, len(idx) - 1]] + 1]
+                           ).astype(np.int64)
 
 
 def saturated_mask(x: np.ndarray, min_run: int = 5) -> np.ndarray:

@@ -222,7 +222,7 @@ def test_a_knock_during_a_turn_is_smoothed_over_but_not_called_a_glitch():
     session, _ = make_session(poses=20, seed=5)
     clean = imucal.calibrate(session)
     det = clean.detection
-    moving = np.flatnonzero((det.statistic > 10 * det.threshold) & ~clean.acc_still)
+    moving = np.flatnonzero((det.statistic(session.acc) > 10 * det.threshold) & ~clean.acc_still)
     i = int(moving[len(moving) // 2])
     for value, warned in ((0.4, False), (1e9, True)):
         acc = session.acc.copy()

@@ -10,6 +10,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
+from row_only import RowOnly
 
 import imucal
 from imucal.numerics.allan import pooled_allan_variance
@@ -149,3 +150,49 @@ def test_result_noise_from_rows_is_the_whole_signals_noise() -> None:
         assert np.array_equal(a.curve.lags, b.curve.lags)
         assert a.rate_hz == b.rate_hz
         assert a.per_axis("white") == b.per_axis("white")
+
+
+def test_pooled_allan_variance_of_runs_across_many_reads() -> None:
+    """Runs longer than a read (2^16 rows) and runs meeting at a read's edge: put together
+    from their reads (a getter), or sliced whole (an array, in its own layout)."""
+    rng = np.random.default_rng(9)
+    n = 600_000
+    x = rng.normal(0.0, 1e-3, (n, 3)) + np.cumsum(rng.normal(0.0, 1e-6, (n, 3)), axis=0)
+    starts = np.array([10, 65_530, 65_536, 131_072, 200_001, 330_000, 599_000])
+    ends = np.array([65_530, 65_536, 131_071, 199_000, 329_999, 598_000, n])
+    lags, avar, terms = _packed_reference(x, starts, ends)
+    for source in (x, lambda a, b: x[a:b] * 1.0):
+        curve = pooled_allan_variance(source, starts, ends)
+        assert np.array_equal(curve.avar, avar) and np.array_equal(curve.terms, terms)
+    fortran = np.asfortranarray(x)
+    curve = pooled_allan_variance(fortran, starts, ends)
+    assert np.array_equal(curve.avar, _packed_reference(fortran, starts, ends)[1])
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_still_noise_reads_the_clocks_through_slices(shared) -> None:
+    """The blocks' edges searched and the rates found through slices of the time arrays
+    (tests/row_only.py); a gyroscope on the accelerometer's own clock shares them."""
+    session, _ = make_session(poses=14, seed=8, acc_rate=200.0, gyro_rate=200.0 if shared
+                              else 100.0)
+    result = imucal.calibrate(session)
+    cal = result.calibrated
+    whole = still_noise(cal, result.block_times)
+    t_acc = RowOnly(cal.t_acc)
+
+    class Source:
+        acc_unit = cal.acc_unit
+
+        def __init__(self):
+            self.t_acc = t_acc
+            self.t_gyro = t_acc if shared else RowOnly(cal.t_gyro)
+
+        def acc(self, a, b):
+            return cal.acc[a:b] * 1.0
+
+        def gyro(self, a, b):
+            return cal.gyro[a:b] * 1.0
+
+    rows = still_noise(Source(), result.block_times)
+    for a, b in ((rows.accelerometer, whole.accelerometer), (rows.gyroscope, whole.gyroscope)):
+        assert np.array_equal(a.curve.avar, b.curve.avar) and a.rate_hz == b.rate_hz

@@ -17,6 +17,7 @@ import pytest
 
 import imucal
 import imucal.stages.apply as apply
+import imucal.stages.detect_stat as detect_stat
 import viewer.decimate as D
 import viewer.signal_rows as S
 from imucal.report import report
@@ -52,6 +53,7 @@ def test_recording_allocates_well_under_the_session(long_result, tmp_path, monke
     # of its grid).
     monkeypatch.setattr(S, "CHUNK", 1 << 13)
     monkeypatch.setattr(apply, "CHUNK_ROWS", 1 << 13)
+    monkeypatch.setattr(detect_stat, "SPAN", 1 << 13)  # the detector's M1, made again
     session = s.acc.nbytes + s.gyro.nbytes + s.t_acc.nbytes + s.t_gyro.nbytes  # 16 MB
     assert len(s.t_acc) > 30 * S.CHUNK
 

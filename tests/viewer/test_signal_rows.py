@@ -84,7 +84,7 @@ def test_rows_and_ranges_are_the_whole_arrays(two_segments, monkeypatch, chunk):
     assert got.gyro.y_range == R.robust_range(np.concatenate([gyro[:, 0], gyro[:, 1]]),
                                               q=0.0005)
 
-    stat = r.detection.statistic
+    stat = r.detection.statistic(s.acc)
     _same(got.detector, *D.envelope(s.t_acc, log10_axis(stat), D.SCREEN_ROWS))
     assert got.detector_range == R.robust_range(np.append(
         np.log10(stat[stat > 0]), np.log10(r.detection.threshold)), q=0.0)

@@ -104,7 +104,7 @@ def test_signals_are_the_sessions_own(run):
     t, axes = rb.scalars(run.path, P.ACC_CALIBRATED)  # short: not decimated
     np.testing.assert_array_equal(axes, r.calibrated.acc)
     t, stat = rb.scalars(run.path, P.DETECTOR_STATISTIC)
-    np.testing.assert_allclose(stat, np.log10(r.detection.statistic), rtol=1e-12)
+    np.testing.assert_allclose(stat, np.log10(r.detection.statistic(s.acc)), rtol=1e-12)
     _, thr = rb.scalars(run.path, P.DETECTOR_THRESHOLD)
     np.testing.assert_allclose(thr, np.log10(r.detection.threshold))
 
