@@ -32,8 +32,6 @@ from imucal.stages.detect_stat import (
     statistic_spans,
 )
 
-__all__ = ["combine_variances", "rolling_statistic"]  # M1 itself: imucal.stages.detect_stat
-
 # The thesis's values (method.md §1), in seconds: its 101-sample window and 100-sample
 # shortest block at 100 Hz (its initial still interval is settings.THESIS_INIT).
 THESIS_WINDOW_S = 1.01

@@ -24,8 +24,9 @@ import numpy as np
 
 from imucal.errors import ImucalError, plural
 from imucal.numerics.order_stats import ranked_values
+from imucal.numerics.rows import search_sorted, value_at
 from imucal.numerics.windows import block_means
-from imucal.session import MEDIAN_SAMPLE, MEDIAN_SMALL, Session, diff_chunks
+from imucal.session import MEDIAN_SAMPLE, MEDIAN_SMALL, Session, diff_chunks, median_step
 from imucal.stages.detect import Detection
 from imucal.warning import RunWarning
 
@@ -257,8 +258,8 @@ def turns_without_gyro(t_gyro: np.ndarray, block_times: np.ndarray) -> np.ndarra
     """(B-1,) bool: the turn between still blocks k and k+1 is not fully covered by gyroscope
     samples (it starts before the first, ends after the last or crosses a gap)."""
     a, b = block_times[:-1, 1], block_times[1:, 0]
-    step = float(np.median(np.diff(t_gyro)))
-    outside = (a < t_gyro[0] - step) | (b > t_gyro[-1] + step)
+    step = median_step(t_gyro, [(0, len(t_gyro))])  # np.median(np.diff(t_gyro)), in blocks
+    outside = (a < value_at(t_gyro, 0) - step) | (b > value_at(t_gyro, -1) + step)
     gaps = time_gaps(t_gyro)
     g0, g1 = t_gyro[gaps], t_gyro[gaps + 1]
     # gaps that start before the turn ends, minus those that end before it starts
@@ -268,8 +269,8 @@ def turns_without_gyro(t_gyro: np.ndarray, block_times: np.ndarray) -> np.ndarra
 
 def blocks_without_gyro(t_gyro: np.ndarray, block_times: np.ndarray) -> np.ndarray:
     """(B,) bool: fewer than two gyroscope samples inside the still block."""
-    lo = np.searchsorted(t_gyro, block_times[:, 0], side="left")
-    hi = np.searchsorted(t_gyro, block_times[:, 1], side="right")
+    lo = search_sorted(t_gyro, block_times[:, 0], side="left")
+    hi = search_sorted(t_gyro, block_times[:, 1], side="right")
     return (hi - lo) < 2
 
 
@@ -287,8 +288,9 @@ def coverage_warning(session: Session, block_times: np.ndarray) -> RunWarning | 
         missing.append(f"{_ranges(no_turn, 'turn')} (of {len(no_turn)}; turn k goes from "
                        "block k to k+1)")
     return RunWarning("gyro_no_data", f"the gyroscope ({sensor_files(session)[1]}: t = "
-                      f"{tg[0]:.2f}-{tg[-1]:.2f} s; the accelerometer: t = {ta[0]:.2f}-"
-                      f"{ta[-1]:.2f} s) has no data (outside its span or across a time gap) for "
+                      f"{value_at(tg, 0):.2f}-{value_at(tg, -1):.2f} s; the accelerometer: t = "
+                      f"{value_at(ta, 0):.2f}-{value_at(ta, -1):.2f} s) has no data (outside its "
+                      "span or across a time gap) for "
                       f"{' and '.join(missing)}; turns without "
                       "gyroscope data are left out of the gyroscope fit and of the gravity "
                       "prediction error")

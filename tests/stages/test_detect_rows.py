@@ -20,7 +20,7 @@ from imucal.stages.detect import detect_static, isolated_outliers, wander_ratio
 from imucal.stages.detect_runs import still_runs, streamed_still_runs
 from imucal.stages.detect_stat import CleanRows, Statistic, combine_variances, rolling_statistic
 from imucal.stages.detect_tuning import local_factor, tune_detector
-from imucal.stages.sanity import split_at_gaps, time_gaps
+from imucal.stages.sanity import coverage_warning, split_at_gaps, time_gaps, turns_without_gyro
 from imucal.stages.saturation import saturated_runs
 from imucal.synth import make_session
 
@@ -248,3 +248,20 @@ def test_blocks_are_cut_at_gaps_from_slices() -> None:
     assert len(whole.blocks) == len(det.blocks) + 1
     np.testing.assert_array_equal(rows.blocks, whole.blocks)
     np.testing.assert_array_equal(rows.means, whole.means)
+
+
+def test_gyroscope_coverage_from_slices() -> None:
+    """A gyroscope that stops early and has a gap: the same turns and blocks without it, and
+    the same warning, with the clocks read through slices."""
+    session, _ = make_session(poses=12, seed=3)
+    det = detect_static(session.acc, session.t_acc)
+    times = np.column_stack([session.t_acc[det.blocks[:, 0]], session.t_acc[det.blocks[:, 1] - 1]])
+    keep = np.r_[0:2000, 2400:int(0.7 * len(session.t_gyro))]
+    cut = dataclasses.replace(session, gyro=session.gyro[keep], t_gyro=session.t_gyro[keep])
+    rows = dataclasses.replace(cut, t_acc=RowOnly(cut.t_acc), t_gyro=RowOnly(cut.t_gyro),
+                               gyro=RowOnly(cut.gyro))
+    warning = coverage_warning(cut, times)
+    assert warning is not None and "turn" in warning.text
+    assert coverage_warning(rows, times) == warning
+    np.testing.assert_array_equal(turns_without_gyro(rows.t_gyro, times),
+                                  turns_without_gyro(cut.t_gyro, times))
