@@ -14,6 +14,8 @@ For each session and round, the baseline's then this checkout's:
   the stage is timed by itself (wall, and CPU from ``time.process_time``).
 
 The minimum over the rounds is reported, with this checkout's figure over the baseline's.
+``gyro_speed.py passes SESSION`` (run by either install's python) prints the CPU seconds of
+each kind of pass over the turns instead.
 """
 
 from __future__ import annotations
@@ -59,6 +61,44 @@ def stage(session: str) -> dict:
     return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}
 
 
+def passes(session: str, repeat: int = 2) -> dict:
+    """CPU seconds of each kind of pass over the turns of ``session`` (mean of ``repeat``),
+    under a model near the identity (run by the install being measured)."""
+    import numpy as np
+
+    import imucal.pipeline as pipeline
+    from imucal.io.load import load_session
+    from imucal.models import SensorModel
+    from imucal.stages.gyro_transitions import Transitions
+
+    got: dict = {}
+
+    def capture(*args, **kwargs):
+        got["args"] = args
+        raise _Captured
+
+    pipeline.calibrate_gyroscope = capture
+    try:
+        pipeline.calibrate(load_session(session))
+    except _Captured:
+        pass
+    w, t, blocks = got["args"][:3]
+    tr = Transitions(w, t, blocks)
+    m = SensorModel(T=np.eye(3), K=np.full(3, 1.01), b=np.array([0.01, 0.0, -0.01]))
+    M, b = np.tile(m.matrix, (len(tr), 1, 1)), np.tile(m.b, (len(tr), 1))
+    runs = {"sensitivity": lambda: tr.layout.sensitivity(tr.rates, m.matrix, m.b),
+            "integration": lambda: tr.layout.integrate(tr.rates, [(m.matrix, m.b)]),
+            "held_out": lambda: tr.rotations_each(M, b),
+            "max_step": lambda: tr.max_step_angle(m)}
+    out = dict.fromkeys(runs, 0.0)
+    for _ in range(repeat):
+        for name, run in runs.items():
+            c0 = time.process_time()
+            run()
+            out[name] += (time.process_time() - c0) / repeat
+    return out
+
+
 def _child(cmd: list[str]) -> dict:
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
@@ -97,8 +137,8 @@ def compare(baseline: Path, sessions: list[str], rounds: int) -> None:
 
 
 def main() -> None:
-    if len(sys.argv) == 3 and sys.argv[1] == "stage":
-        print(json.dumps(stage(sys.argv[2])))
+    if len(sys.argv) == 3 and sys.argv[1] in ("stage", "passes"):
+        print(json.dumps({"stage": stage, "passes": passes}[sys.argv[1]](sys.argv[2])))
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sessions", nargs="+")

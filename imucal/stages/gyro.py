@@ -221,6 +221,9 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     after its last, across a time gap): left out the same way (the caller says which).
     Whether the bias is fitted too is ``settings.optimise_bias``, or with ``None`` the variant
     that predicts held-out turns better (:func:`fit_bias_choice`).
+
+    ``w_raw`` (N, 3) and ``t`` (N,) are read only by ``len``, ``.shape``, slices of rows and
+    gathers with a 1-D integer array, never whole (they may be arrays kept on disk; issue 12).
     """
     if len(block_times) < 2:
         raise ImucalError(f"{len(block_times)} static block(s): the gyroscope needs at least two "
