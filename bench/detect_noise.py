@@ -1,6 +1,6 @@
 """Time (and optionally trace the allocations of) the still-block stage and the noise figures of
 one session, in whichever tree's python runs it: main's and a branch's side by side, on a shared
-machine, alternating (the whole run: bench/batch_results.md).
+machine, alternating (see bench/detect_noise.md; the whole run: bench/batch_results.md).
 
     /work/main/.venv/bin/python bench/detect_noise.py /tmp/mn_n60.mat --label main
     .venv/bin/python bench/detect_noise.py /tmp/mn_n60.mat --label branch [--memory]
