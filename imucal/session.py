@@ -121,7 +121,7 @@ def diff_chunks(t: np.ndarray, ranges: Iterable[tuple[int, int]],
     return gen
 
 
-def _chunks_all(x: np.ndarray, test, overlap: int = 0, rows: int = 1 << 18) -> bool:
+def chunks_all(x: np.ndarray, test, overlap: int = 0, rows: int = 1 << 18) -> bool:
     """``np.all(test(x))`` a chunk of rows at a time (``overlap`` rows shared with the next,
     for a test on steps): no temporary the length of a long recording."""
     return all(bool(np.all(test(x[lo:lo + rows + overlap])))
@@ -145,12 +145,12 @@ def validate(session: Session) -> None:
         if t is None or np.asarray(t).shape != (len(x),):
             raise ImucalError(f"expected one timestamp per sample ({len(x)})",
                               source=session.source, field=f"{name} time")
-        if not np.issubdtype(x.dtype, np.number) or not _chunks_all(x, np.isfinite):
+        if not np.issubdtype(x.dtype, np.number) or not chunks_all(x, np.isfinite):
             raise ImucalError("samples must be finite numbers (NaN or Inf found)",
                               source=session.source, field=name)
         t = np.asarray(t, dtype=float)
-        if (len(t) < 2 or not _chunks_all(t, np.isfinite)
-                or not _chunks_all(t, lambda c: np.diff(c) > 0, overlap=1)):
+        if (len(t) < 2 or not chunks_all(t, np.isfinite)
+                or not chunks_all(t, lambda c: np.diff(c) > 0, overlap=1)):
             raise ImucalError("timestamps must be finite and strictly increasing",
                               source=session.source, field=f"{name} time")
 

@@ -10,6 +10,7 @@ from imucal.io.column_names import LABELS
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.spill import Empty, elementwise
 from imucal.io.units import TIME_UNITS
+from imucal.session import chunks_all
 
 MAX_RATE_HZ = 100_000.0
 MAX_BRIDGED_RUN = 5  # longest run of non-finite samples that is interpolated instead of refused
@@ -27,7 +28,7 @@ def own_rows(acc: Part, gyro: Part, opts: LoadOptions) -> None:
             or not (acc.time is gyro.time or np.array_equal(acc.time, gyro.time,
                                                             equal_nan=True))):
         return  # not rows of one table
-    if _chunks_all(acc.values, np.isfinite, 0) and _chunks_all(gyro.values, np.isfinite, 0):
+    if chunks_all(acc.values, np.isfinite, 0) and chunks_all(gyro.values, np.isfinite, 0):
         return  # every row holds both (the common case: no row-wise masks needed)
     has_a = np.isfinite(acc.values).any(axis=1)
     has_g = np.isfinite(gyro.values).any(axis=1)
@@ -144,17 +145,10 @@ def _compare_rate(t: np.ndarray, part: Part, notes: list[str]) -> None:
 def _counts_samples(time: np.ndarray, part: Part, opts: LoadOptions) -> bool:
     """Integers in steps of exactly 1 in a time column that would be read in seconds."""
     if (part.time_unit is not None or part.time_is_datetime or opts.time_unit != "s"
-            or time.size < 2 or not _chunks_all(time, np.isfinite, 0)):
+            or time.size < 2 or not chunks_all(time, np.isfinite, 0)):
         return False
-    return bool(_chunks_all(time, lambda c: np.diff(c) == 1, 1)
+    return bool(chunks_all(time, lambda c: np.diff(c) == 1, 1)
                 and float(time[0]).is_integer())
-
-
-def _chunks_all(t: np.ndarray, test, overlap: int, chunk: int = 1 << 18) -> bool:
-    """``np.all(test(t))`` a chunk at a time (``overlap`` rows shared with the next chunk, for
-    a test on steps), stopping at the first chunk that fails: no array the length of ``t``."""
-    return all(bool(np.all(test(t[c0:c0 + chunk + overlap])))
-               for c0 in range(0, max(len(t) - overlap, 1), chunk))
 
 
 def _time_unit(part: Part, opts: LoadOptions) -> str:

@@ -26,7 +26,14 @@ from imucal.errors import ImucalError, plural
 from imucal.numerics.order_stats import ranked_values
 from imucal.numerics.rows import search_sorted, value_at
 from imucal.numerics.windows import block_means
-from imucal.session import MEDIAN_SAMPLE, MEDIAN_SMALL, Session, diff_chunks, median_step
+from imucal.session import (
+    MEDIAN_SAMPLE,
+    MEDIAN_SMALL,
+    Session,
+    chunks_all,
+    diff_chunks,
+    median_step,
+)
 from imucal.stages.detect import Detection
 from imucal.warning import RunWarning
 
@@ -69,7 +76,7 @@ def unwrap_session(session: Session) -> tuple[Session, list[RunWarning]]:
     for name, label, file, x, t in (("acc", "accelerometer", acc_file, session.acc, session.t_acc),
                                     ("gyro", "gyroscope", gyro_file, session.gyro,
                                      session.t_gyro)):
-        if x is None or len(x) < 3 or not _integer_valued(x):
+        if x is None or len(x) < 3 or not chunks_all(x, lambda c: c == np.rint(c)):
             continue  # only integer-valued raw counts can wrap
         fixed, where = x, []
         steps = _largest_steps(x)
@@ -88,13 +95,6 @@ def unwrap_session(session: Session) -> tuple[Session, list[RunWarning]]:
             warnings.append(RunWarning(f"{name}_wraparound", f"{label} in {file}: raw counts "
                                        f"wrapped around and were unwrapped: {'; '.join(where)}"))
     return (dataclasses.replace(session, **changes) if changes else session), warnings
-
-
-def _integer_valued(x: np.ndarray, rows: int = 1 << 16) -> bool:
-    """``np.all(x == np.rint(x))`` a chunk of rows at a time, stopping at the first chunk
-    that is not (a calibrated-unit signal: its first): no copy of the signal."""
-    return all(bool(np.all(c == np.rint(c))) for c in (x[lo:lo + rows]
-                                                       for lo in range(0, len(x), rows)))
 
 
 def _largest_steps(x: np.ndarray, rows: int = 1 << 16) -> np.ndarray:
