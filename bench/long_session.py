@@ -9,13 +9,15 @@
 Runs ``imucal calibrate SESSION -o X.json`` (and with ``--rrd``, the recording too) under
 ``/usr/bin/time -v``, the two commands in turn (A B A B ...), and prints per command the median
 wall, user and system seconds and peak RSS, and the ratios this tree / baseline pair by pair;
-the two calib.json are compared (the clock's lines aside).
+the two calib.json are compared (the clock's lines aside): every number's largest relative
+difference, every other value equal.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import statistics
 import subprocess
@@ -51,6 +53,28 @@ def _calib(path: Path) -> dict:
     return {k: v for k, v in d.items() if k not in ("created", "elapsed_s", "software")}
 
 
+def largest_difference(a, b, where: str = "") -> tuple[float, str]:
+    """The largest relative difference between two calib.json trees' numbers and where it is
+    (``inf`` where they differ otherwise: a key, a length, a string, a flag)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        if a.keys() != b.keys():
+            return math.inf, f"{where}: keys {sorted(a.keys() ^ b.keys())}"
+        found = [largest_difference(a[k], b[k], f"{where}/{k}") for k in a]
+    elif isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return math.inf, f"{where}: length {len(a)} against {len(b)}"
+        found = [largest_difference(x, y, f"{where}[{i}]") for i, (x, y) in enumerate(zip(a, b))]
+    elif (isinstance(a, (int, float)) and isinstance(b, (int, float))
+          and not isinstance(a, bool) and not isinstance(b, bool)):
+        if a == b or (math.isnan(a) and math.isnan(b)):
+            return 0.0, where
+        return abs(a - b) / max(abs(a), abs(b)), where
+    else:
+        same = a == b and type(a) is type(b)
+        return (0.0, where) if same else (math.inf, f"{where}: {a!r} against {b!r}")
+    return max(found, key=lambda f: f[0], default=(0.0, where))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("session", type=Path)
@@ -65,9 +89,10 @@ def main() -> None:
         for _ in range(args.n):
             for name, exe in (("this", this), ("baseline", args.baseline)):
                 runs[name].append(run(exe, args.session, outs[name], args.rrd))
-        same = _calib(outs["this"]) == _calib(outs["baseline"])
+        diff, where = largest_difference(_calib(outs["this"]), _calib(outs["baseline"]))
+    same = "identical" if diff == 0 else f"largest relative difference {diff:.1e} at {where}"
     print(f"{args.session.name}, {args.n} runs each, alternating"
-          f"{', with the .rrd' if args.rrd else ''}; calib.json identical: {same}\n")
+          f"{', with the .rrd' if args.rrd else ''}; calib.json: {same}\n")
     print("| figure | this tree | baseline | ratio (median of pairs) |")
     print("|---|---|---|---|")
     for key in FIELDS:
