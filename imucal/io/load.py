@@ -24,6 +24,7 @@ from imucal.errors import ImucalError
 from imucal.io.column_names import LABELS, ROLES
 from imucal.io.file_contents import Table, Variables
 from imucal.io.file_facts import FileFacts, read_facts
+from imucal.io.load_mat5_pool import usable_threads
 from imucal.io.mat_layout import from_variables
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.readers import display_name, read_file
@@ -61,6 +62,7 @@ def load_session(
     time_unit: str = "s",
     acc_only: bool = False,
     spill: SpillPolicy | None = None,
+    threads: int | None = None,
 ) -> Session:
     """Load an accelerometer + gyroscope recording from ``path`` (and ``gyro_path``).
 
@@ -73,7 +75,9 @@ def load_session(
     as often one half of a two-file session); ``acc_only`` also drops a gyroscope that is there.
     ``spill`` says where and from which size the signals of a .mat file are mapped from a
     temporary file rather than held in memory (:mod:`imucal.io.spill`; default: 64 MB and up,
-    in the system's temporary folder). Raises :class:`ImucalError` for any bad input.
+    in the system's temporary folder). ``threads`` caps the threads that inflate a .mat file's
+    variables (default: the cores the process may use; a batch worker passes 1, so that
+    workers, not threads, use the cores). Raises :class:`ImucalError` for any bad input.
     """
     paths = [Path(path)] + ([Path(gyro_path)] if gyro_path is not None else [])
     source = " + ".join(display_name(p) for p in paths)
@@ -88,7 +92,8 @@ def load_session(
         _check_file(p)
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
-    parts = _read_parts(paths, acc_only, opts, source, store)
+    threads = usable_threads() if threads is None else max(1, int(threads))
+    parts = _read_parts(paths, acc_only, opts, source, store, threads)
 
     acc, t_acc = settle_time(parts["acc"], opts, store.empty)
     gyro = t_gyro = None
@@ -119,13 +124,13 @@ def load_session(
 
 
 def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
-                source: str, store: Spill) -> dict:
+                source: str, store: Spill, threads: int) -> dict:
     """The accelerometer's and gyroscope's columns, from one file or from two."""
     if len(paths) == 2:
-        parts = _extract(read_file(paths[0], store), ("acc",), opts)
-        parts.update(_extract(read_file(paths[1], store), ("gyro",), opts))
+        parts = _extract(read_file(paths[0], store, threads), ("acc",), opts)
+        parts.update(_extract(read_file(paths[1], store, threads), ("gyro",), opts))
         return parts
-    parts = _extract(read_file(paths[0], store), ("acc", "gyro"), opts)
+    parts = _extract(read_file(paths[0], store, threads), ("acc", "gyro"), opts)
     if "gyro" not in parts and not acc_only:
         raise ImucalError("found an accelerometer and no gyroscope; give the gyroscope's "
                           "file with --gyro FILE, or --acc-only to calibrate the "
