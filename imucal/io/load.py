@@ -15,7 +15,8 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +94,7 @@ def load_session(
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
     threads = usable_threads() if threads is None else max(1, int(threads))
+    sha256 = _sha256_soon(paths, threads)
     parts = _read_parts(paths, acc_only, opts, source, store, threads)
 
     acc, t_acc = settle_time(parts["acc"], opts, store.empty)
@@ -115,7 +117,7 @@ def load_session(
         acc_unit=acc_unit,
         gyro_unit=final_gyro_unit,
         source=source,
-        sha256=_sha256(paths),
+        sha256=sha256(),
         notes=tuple(dict.fromkeys(opts.notes)),  # a shared time column speaks once
         init_still_s=opts.init_still_s,
         storage=store.note(),
@@ -219,6 +221,17 @@ def _check_file(path: Path) -> None:
     if st.st_size > MAX_FILE_BYTES:
         raise ImucalError(f"the file is {st.st_size / 2**30:.1f} GiB; files over 2 GiB are not "
                           "loaded (split the recording)", source=name)
+
+
+def _sha256_soon(paths: list[Path], threads: int) -> Callable[[], str]:
+    """The files' SHA-256: hashed in a thread of its own while they load, when more than one
+    thread is allowed (hashlib releases the GIL; 1 GB at 6 hours is a second), else on asking."""
+    if threads <= 1:
+        return lambda: _sha256(paths)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="imucal-sha256")
+    future = pool.submit(_sha256, paths)
+    pool.shutdown(wait=False)  # a load that fails does not wait for the hash
+    return future.result
 
 
 def _sha256(paths: list[Path]) -> str:
