@@ -67,7 +67,6 @@ class _Stopped(Exception):
 
 
 Job = Callable[[Callable[[], bool]], None]  # fills one variable's array; its argument: stop?
-Run = Callable[[list[tuple[Job, Callable[[], None]]]], None]
 
 
 def read_mat5_arrays(path: Path, spill: Spill | None = None, threads: int = 1
@@ -107,7 +106,7 @@ def _jobs(fd: int, found: dict[str, np.ndarray], spill: Spill
     while end - pos >= 8:
         kind, nbytes = struct.unpack(fmt + "II", os.pread(fd, 8, pos))
         body = pos + 8
-        if kind == _COMPRESSED and not kind >> 16 and nbytes > end - body:
+        if kind == _COMPRESSED and nbytes > end - body:
             _truncated(fd, body, end - body, fmt, head)  # the old way refuses it: name it
         if kind >> 16 or nbytes > end - body or kind not in (_MATRIX, _COMPRESSED):
             raise Unsupported("top-level element")
