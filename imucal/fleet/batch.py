@@ -148,7 +148,7 @@ def run_job(job: Job) -> dict[str, Any]:
         from imucal.io.load import load_session
         from imucal.pipeline import calibrate
 
-        session = load_session(job.path, **job.load_kw)
+        session = load_session(job.path, **job.load_kw, threads=1)  # workers use the cores
         if session.sha256 != job.sha256:
             raise ImucalError("the file changed while the batch ran", source=job.path)
         result = calibrate(session, **job.settings)

@@ -15,7 +15,8 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from imucal.errors import ImucalError
 from imucal.io.column_names import LABELS, ROLES
 from imucal.io.file_contents import Table, Variables
 from imucal.io.file_facts import FileFacts, read_facts
+from imucal.io.load_mat5_pool import usable_threads
 from imucal.io.mat_layout import from_variables
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.readers import display_name, read_file
@@ -61,6 +63,7 @@ def load_session(
     time_unit: str = "s",
     acc_only: bool = False,
     spill: SpillPolicy | None = None,
+    threads: int | None = None,
 ) -> Session:
     """Load an accelerometer + gyroscope recording from ``path`` (and ``gyro_path``).
 
@@ -73,7 +76,9 @@ def load_session(
     as often one half of a two-file session); ``acc_only`` also drops a gyroscope that is there.
     ``spill`` says where and from which size the signals of a .mat file are mapped from a
     temporary file rather than held in memory (:mod:`imucal.io.spill`; default: 64 MB and up,
-    in the system's temporary folder). Raises :class:`ImucalError` for any bad input.
+    in the system's temporary folder). ``threads`` caps the threads that inflate a .mat file's
+    variables (default: the cores the process may use; a batch worker passes 1, so that
+    workers, not threads, use the cores). Raises :class:`ImucalError` for any bad input.
     """
     paths = [Path(path)] + ([Path(gyro_path)] if gyro_path is not None else [])
     source = " + ".join(display_name(p) for p in paths)
@@ -88,7 +93,9 @@ def load_session(
         _check_file(p)
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
-    parts = _read_parts(paths, acc_only, opts, source, store)
+    threads = usable_threads() if threads is None else max(1, int(threads))
+    sha256 = _sha256_soon(paths, threads)
+    parts = _read_parts(paths, acc_only, opts, source, store, threads)
 
     acc, t_acc = settle_time(parts["acc"], opts, store.empty)
     gyro = t_gyro = None
@@ -110,7 +117,7 @@ def load_session(
         acc_unit=acc_unit,
         gyro_unit=final_gyro_unit,
         source=source,
-        sha256=_sha256(paths),
+        sha256=sha256(),
         notes=tuple(dict.fromkeys(opts.notes)),  # a shared time column speaks once
         init_still_s=opts.init_still_s,
         storage=store.note(),
@@ -119,13 +126,13 @@ def load_session(
 
 
 def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
-                source: str, store: Spill) -> dict:
+                source: str, store: Spill, threads: int) -> dict:
     """The accelerometer's and gyroscope's columns, from one file or from two."""
     if len(paths) == 2:
-        parts = _extract(read_file(paths[0], store), ("acc",), opts)
-        parts.update(_extract(read_file(paths[1], store), ("gyro",), opts))
+        parts = _extract(read_file(paths[0], store, threads), ("acc",), opts)
+        parts.update(_extract(read_file(paths[1], store, threads), ("gyro",), opts))
         return parts
-    parts = _extract(read_file(paths[0], store), ("acc", "gyro"), opts)
+    parts = _extract(read_file(paths[0], store, threads), ("acc", "gyro"), opts)
     if "gyro" not in parts and not acc_only:
         raise ImucalError("found an accelerometer and no gyroscope; give the gyroscope's "
                           "file with --gyro FILE, or --acc-only to calibrate the "
@@ -214,6 +221,17 @@ def _check_file(path: Path) -> None:
     if st.st_size > MAX_FILE_BYTES:
         raise ImucalError(f"the file is {st.st_size / 2**30:.1f} GiB; files over 2 GiB are not "
                           "loaded (split the recording)", source=name)
+
+
+def _sha256_soon(paths: list[Path], threads: int) -> Callable[[], str]:
+    """The files' SHA-256: hashed in a thread of its own while they load, when more than one
+    thread is allowed (hashlib releases the GIL; 1 GB at 6 hours is a second), else on asking."""
+    if threads <= 1:
+        return lambda: _sha256(paths)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="imucal-sha256")
+    future = pool.submit(_sha256, paths)
+    pool.shutdown(wait=False)  # a load that fails does not wait for the hash
+    return future.result
 
 
 def _sha256(paths: list[Path]) -> str:

@@ -38,15 +38,16 @@ _UNSUPPORTED_MAGIC = {
 }
 
 
-def read_file(path: Path, spill: Spill | None = None) -> Table | Variables:
+def read_file(path: Path, spill: Spill | None = None, threads: int = 1) -> Table | Variables:
     """Read any supported format; library exceptions become one-line ImucalErrors. ``spill``
-    allocates the arrays of a MATLAB v5 file (large ones mapped, :mod:`imucal.io.spill`)."""
+    allocates the arrays of a MATLAB v5 file (large ones mapped, :mod:`imucal.io.spill`), whose
+    variables are inflated in up to ``threads`` threads."""
     source = display_name(path)
     try:
         with path.open("rb") as fh:
             head = fh.read(1024)
         if head.startswith(_MAGIC_MAT5):
-            return _read_mat5(path, spill)
+            return _read_mat5(path, spill, threads)
         if head[:8] == _MAGIC_HDF5 or head[512:520] == _MAGIC_HDF5:
             return _read_hdf5(path)
         if head[:4] == _MAGIC_PARQUET:
@@ -94,13 +95,16 @@ def _as_matrix(value: object) -> np.ndarray | None:
     return arr
 
 
-def _read_mat5(path: Path, spill: Spill | None) -> Variables:
+def _read_mat5(path: Path, spill: Spill | None, threads: int) -> Variables:
     """Numeric variables straight from the file into their arrays (:mod:`imucal.io.load_mat5`);
     a file that reader does not follow the general way: checked, then read by scipy."""
-    from imucal.io.load_mat5 import Unsupported, read_mat5_arrays
+    from imucal.io.load_mat5 import CorruptVariable, Unsupported, read_mat5_arrays
 
     try:
-        return Variables(path.name, read_mat5_arrays(path, spill))
+        return Variables(path.name, read_mat5_arrays(path, spill, threads))
+    except CorruptVariable as e:  # the general way refuses it too, without naming it
+        raise ImucalError(f"corrupt MATLAB v5 file: the variable {e.what}",
+                          source=display_name(path), field=e.name) from None
     except Unsupported:
         return _read_mat5_general(path)
 

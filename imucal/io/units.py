@@ -12,7 +12,6 @@ import re
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.numerics.order_stats import ranked_values
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9,
               "100us": 1e-4}  # the last only as a name implies it (Xsens SampleTimeFine)
@@ -66,9 +65,13 @@ def check_unit_arg(value: str, keys: dict[str, str], name: str, source: str) -> 
 # --- guesses from the values ---------------------------------------------------------------------
 
 
-def _integer_like(x: np.ndarray) -> bool:
+def _integer_like(x: np.ndarray, rows: int = 1 << 16) -> bool:
+    """``np.mean(x == np.round(x)) >= 0.99`` a block of rows at a time (no rounded copy of
+    ``x``: 500 MB at 6 hours of 1 kHz): numpy's mean of booleans is their exact count over n."""
     # Interpolated gaps are not integers; a few of them must not hide raw counts.
-    return bool(np.mean(x == np.round(x)) >= 0.99)
+    whole = sum(int(np.count_nonzero(x[lo:lo + rows] == np.round(x[lo:lo + rows])))
+                for lo in range(0, len(x), rows))
+    return x.size > 0 and whole / x.size >= 0.99
 
 
 def _row_norms(x: np.ndarray, rows: int = 1 << 16) -> np.ndarray:
@@ -88,7 +91,7 @@ def guess_acc_unit(acc: np.ndarray) -> tuple[str | None, float]:
             return "g", norm
         if 5.0 <= norm <= 20.0:
             return "m/s^2", norm
-        if float(np.median(np.abs(acc))) > 100 or (norm > 50 and _integer_like(acc)):
+        if _abs_median(acc) > 100 or (norm > 50 and _integer_like(acc)):
             return "counts", norm
     return None, norm
 
@@ -144,6 +147,7 @@ def resolve_gyro_unit(gyro: np.ndarray, unit: str, hint: str | None, acc_unit: s
 
 SMALL = 1 << 21  # values: below this, the copy is cheap and np.median / np.percentile do it
 ROWS = 1 << 16  # rows of x read at a time
+SAMPLE_ROWS = 1 << 18  # rows of x sampled for the brackets (at most one in 16)
 
 
 def abs_median_p995(x: np.ndarray, small: int = SMALL) -> tuple[float, float]:
@@ -176,6 +180,18 @@ def abs_median_p995(x: np.ndarray, small: int = SMALL) -> tuple[float, float]:
     return median, float(p995)
 
 
+def _abs_median(x: np.ndarray, small: int = SMALL) -> float:
+    """``np.median(np.abs(x))`` to the bit, without a copy of a long ``x`` (as above)."""
+    n = x.size
+    stats = None if n < small else _order_statistics(x, _abs_values, [[(n - 1) // 2, n // 2]])
+    if stats is None:
+        return float(np.median(np.abs(x), overwrite_input=True))
+    m0, m1 = stats[0]
+    if np.isnan(m0):
+        return float("nan")
+    return float(np.mean(np.array([m0, m1]))) if n % 2 == 0 else float(m1)
+
+
 def _abs_median_p995_copy(x: np.ndarray) -> tuple[float, float]:
     magnitude = np.abs(x)  # our own copy: the order statistics may reorder it in place
     median = float(np.median(magnitude, overwrite_input=True))
@@ -189,7 +205,7 @@ def _median_row_norm(x: np.ndarray, small: int = SMALL) -> float:
     n = len(x)
     if n < small:
         return float(np.median(_row_norms(x), overwrite_input=True))
-    stats = _order_statistics(x, _row_norms, [[(n - 1) // 2, n // 2]])
+    stats = _order_statistics(x, _row_norms, [[(n - 1) // 2, n // 2]], _norm_screen)
     if stats is None:
         return float(np.median(_row_norms(x), overwrite_input=True))
     m0, m1 = stats[0]
@@ -202,16 +218,108 @@ def _abs_values(x: np.ndarray) -> np.ndarray:
     return np.abs(x).ravel()
 
 
+# Relative slack of the screen's sums of squares: theirs and numpy's differ by a few 1e-16
+# (three non-negative terms added in another order), so a row this far past a bracket's edge
+# is past it in numpy's norms too; edges outside [1e-100, 1e100] are not screened (squares
+# there underflow or overflow).
+_SLACK = 1e-9
+_SCREENED = (1e-100, 1e100)
+
+
+def _norm_screen(rows: np.ndarray, lo: float, hi: float) -> tuple[int, np.ndarray]:
+    """How many of ``rows`` have a norm surely below ``lo``, and the rows that may lie in
+    ``[lo, hi]`` (NaN rows among them), from sums of squares taken a column at a time: five
+    times cheaper than ``np.linalg.norm(rows, axis=1)``, which then runs on the few rows near
+    the bracket only, so every value counted or kept is numpy's own."""
+    s = rows[:, 0] * rows[:, 0]
+    for j in range(1, rows.shape[1]):
+        s += rows[:, j] * rows[:, j]
+    below = np.zeros(len(s), dtype=bool)
+    if _SCREENED[0] <= lo <= _SCREENED[1]:
+        below = s < lo * lo * (1.0 - _SLACK)
+    outside = below.copy()
+    if _SCREENED[0] <= hi <= _SCREENED[1]:
+        outside |= s > hi * hi * (1.0 + _SLACK)
+    return int(np.count_nonzero(below)), rows[~outside]
+
+
 def _order_statistics(x: np.ndarray, values, groups: list[list[int]],
-                      ) -> list[list[float]] | None:
+                      screen=None) -> list[list[float]] | None:
     """For each group of ranks (close together), the values of those ranks in the sorted
     ``values(x)`` (a 1-D array row by row: ``values(x[a:b])`` is that of rows a to b; NaN if
-    one is NaN, as numpy's are), ``ROWS`` rows at a time; None if a bracket missed."""
+    one is NaN, as numpy's are), ``ROWS`` rows at a time; None if a bracket missed.
 
-    def chunks():
-        for r0 in range(0, len(x), ROWS):
-            yield values(x[r0:r0 + ROWS])
-
+    A strided sample of rows brackets each group (its quantiles widened by four standard
+    deviations of a sample quantile's rank); one pass then counts the values below each
+    bracket and keeps those inside it, a value the sample holds counted rather than kept (a
+    clock's few steps or tied counts cost nothing). The values at the ranks are those
+    ``np.sort`` puts there: numpy's median or percentile interpolated from them is numpy's to
+    the bit. ``screen(rows, lo, hi)`` (optional) says cheaply how many rows are surely below
+    ``lo`` and which may be inside; ``values`` then runs on those only."""
     n = len(values(x[:1])) * len(x)
-    # A sample of at most ~2^18 rows' values, 1/16 of a short x's.
-    return ranked_values(chunks, n, groups, sample=n // max(16, len(x) // (1 << 18)))
+    drawn = np.sort(values(x[::max(16, len(x) // SAMPLE_ROWS)]))
+    nan = [[float("nan")] * len(r) for r in groups]
+    if not len(drawn) or np.isnan(drawn[-1]):
+        return nan if len(drawn) else None
+    m = len(drawn)
+    margin = max(0.004, 4.0 / np.sqrt(m))
+    brackets, known = [], []
+    for ranks in groups:
+        lo = int(np.floor((min(ranks) / n - margin) * m))
+        hi = int(np.ceil((max(ranks) / n + margin) * m))
+        edges = (drawn[lo] if lo > 0 else -np.inf, drawn[hi] if hi < m else np.inf)
+        brackets.append(edges)
+        known.append(np.unique(drawn[(drawn >= edges[0]) & (drawn <= edges[1])]))
+    del drawn
+    counts = [np.zeros(len(k), dtype=np.int64) for k in known]
+    below = [0] * len(groups)
+    inside: list[list[np.ndarray]] = [[] for _ in groups]
+    kept = 0
+    for r0 in range(0, len(x), ROWS):
+        rows = x[r0:r0 + ROWS]
+        c = values(rows) if screen is None else None
+        for g, (lo_v, hi_v) in enumerate(brackets):
+            if screen is not None:
+                sure, near = screen(rows, lo_v, hi_v)
+                below[g] += sure
+                c = values(near)
+            if np.isnan(c).any():
+                return nan
+            below[g] += int(np.count_nonzero(c < lo_v))
+            got = c[(c >= lo_v) & (c <= hi_v)]
+            k = known[g]
+            if len(k):
+                pos = np.minimum(np.searchsorted(k, got), len(k) - 1)
+                hit = k[pos] == got
+                counts[g] += np.bincount(pos[hit], minlength=len(k))
+                got = got[~hit]
+            inside[g].append(got)
+            kept += len(got)
+        if kept > n // 8:  # the brackets hold too much: no saving left
+            return None
+    out = [_pick([r - below[g] for r in ranks], known[g], counts[g], inside[g])
+           for g, ranks in enumerate(groups)]
+    return None if any(p is None for p in out) else out  # type: ignore[return-value]
+
+
+def _pick(ranks: list[int], known: np.ndarray, counts: np.ndarray,
+          inside: list[np.ndarray]) -> list[float] | None:
+    """The values at ``ranks`` (within the bracket) of the multiset of ``known`` values (sorted,
+    distinct, each ``counts`` times) and the ``inside`` values (none equal to a known one)."""
+    rest = np.concatenate(inside) if inside else np.zeros(0)
+    rest.sort()
+    cum = np.concatenate([[0], np.cumsum(counts)])  # known items before block j: cum[j]
+    starts = np.searchsorted(rest, known) + cum[:-1]  # block j's first rank in the merge
+    out = []
+    for r in ranks:
+        if r < 0:
+            return None
+        j = int(np.searchsorted(starts, r, side="right")) - 1
+        if j >= 0 and r < starts[j] + counts[j]:
+            out.append(float(known[j]))
+            continue
+        i = r - int(cum[j + 1])  # every known block up to j ends before rank r
+        if i >= len(rest):
+            return None
+        out.append(float(rest[i]))
+    return out
