@@ -15,15 +15,15 @@ compiled once per machine and then loaded from numba's cache (``cache=True``).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from imucal.numerics.rk4.jit import jit
 from imucal.numerics.rk4.step import calibrated, hamilton, rk4_step, rotation_matrix
 
 _F1, _F2, _F3, _I1 = "float64[:]", "float64[:, :]", "float64[:, :, :]", "int64[:]"
 _ROWS = f"{_F2}, {_F1}, {_I1}, {_I1}"  # w, t, starts, ends
 
 
-@njit(cache=True)
+@jit()
 def _normalised(qw, qx, qy, qz):  # pragma: no cover - compiled
     """``q / |q|``: renormalising after every step equals normalising the product once at the
     end, because ``|q (x) P| = |q| |P|``. Written as ``sqrt(sum q^2)``, not ``abs``, so that it
@@ -32,7 +32,7 @@ def _normalised(qw, qx, qy, qz):  # pragma: no cover - compiled
     return qw / n, qx / n, qy / n, qz / n
 
 
-@njit(cache=True)
+@jit()
 def rotation(w, t, s, e, M, b):  # pragma: no cover - compiled
     """The rotation (normalised) over samples ``s .. e`` under ``w = M (w_raw - b)``: the
     ordered product of the RK4 steps (method.md M5)."""
@@ -46,7 +46,7 @@ def rotation(w, t, s, e, M, b):  # pragma: no cover - compiled
     return _normalised(qw, qx, qy, qz)
 
 
-@njit(cache=True)
+@jit()
 def _put(out, qw, qx, qy, qz):  # pragma: no cover - compiled
     out[0] = qw
     out[1] = qx
@@ -54,7 +54,7 @@ def _put(out, qw, qx, qy, qz):  # pragma: no cover - compiled
     out[3] = qz
 
 
-@njit(f"void({_ROWS}, {_F3}, {_F2}, {_F3})", cache=True, nogil=True)
+@jit(f"void({_ROWS}, {_F3}, {_F2}, {_F3})", nogil=True)
 def integrate(w, t, starts, ends, M, b, out):  # pragma: no cover - compiled
     """``out[m, k]`` (k, K, 4): interval k's rotation under model m, ``M[m]`` (3, 3) and
     ``b[m]`` (3,). Each model's arithmetic is the same as alone; an interval's samples are
@@ -65,7 +65,7 @@ def integrate(w, t, starts, ends, M, b, out):  # pragma: no cover - compiled
             _put(out[m, k], qw, qx, qy, qz)
 
 
-@njit(f"void({_ROWS}, {_F3}, {_F2}, {_F2})", cache=True, nogil=True)
+@jit(f"void({_ROWS}, {_F3}, {_F2}, {_F2})", nogil=True)
 def integrate_each(w, t, starts, ends, M, b, out):  # pragma: no cover - compiled
     """``out[k]`` (K, 4): interval k's rotation under a model of its own, ``M[k]``, ``b[k]``."""
     for k in range(starts.shape[0]):
@@ -73,7 +73,7 @@ def integrate_each(w, t, starts, ends, M, b, out):  # pragma: no cover - compile
         _put(out[k], qw, qx, qy, qz)
 
 
-@njit(cache=True)
+@jit()
 def _accumulate(acc, R, c, dx, dy, dz):  # pragma: no cover - compiled
     """``acc[3 a + i, :] += R[3 a + i] c (dx, dy, dz, 1)``: one sample's trapezoid term."""
     ex, ey, ez = dx * c, dy * c, dz * c
@@ -84,7 +84,7 @@ def _accumulate(acc, R, c, dx, dy, dz):  # pragma: no cover - compiled
         acc[r, 3] += R[r] * c
 
 
-@njit(f"void({_ROWS}, {_F2}, {_F1}, {_F2}, {_F3})", cache=True, nogil=True)
+@jit(f"void({_ROWS}, {_F2}, {_F1}, {_F2}, {_F3})", nogil=True)
 def sensitivity(w, t, starts, ends, M, b, q_out, S_out):  # pragma: no cover - compiled
     """Interval k's rotation ``q_out[k]`` (K, 4), the same to the bit as :func:`integrate`'s,
     and its sensitivity to the model, ``S_out[k]`` (K, 9, 4),
@@ -125,7 +125,7 @@ def sensitivity(w, t, starts, ends, M, b, q_out, S_out):  # pragma: no cover - c
         _put(q_out[k], *_normalised(qw, qx, qy, qz))
 
 
-@njit(f"float64({_ROWS}, {_F2}, {_F1})", cache=True, nogil=True)
+@jit(f"float64({_ROWS}, {_F2}, {_F1})", nogil=True)
 def max_step(w, t, starts, ends, M, b):  # pragma: no cover - compiled
     """The largest angle turned in one step, ``|M (w_raw(t_n) - b)| (t_(n+1) - t_n)`` with the
     rate at the step's start (0 without steps)."""
@@ -137,7 +137,7 @@ def max_step(w, t, starts, ends, M, b):  # pragma: no cover - compiled
     return out
 
 
-@njit(f"void({_ROWS}, {_F1}, {_F1})", cache=True, nogil=True)
+@jit(f"void({_ROWS}, {_F1}, {_F1})", nogil=True)
 def raw_turn(w, t, starts, ends, b, out):  # pragma: no cover - compiled
     """``out[k]``: the integral of ``|w_raw - b|`` over interval k, the rate of each step the
     mean of its two samples."""

@@ -7,10 +7,10 @@ same code compiles for complex numbers too (the complex-step Jacobian of ``bench
 
 from __future__ import annotations
 
-from numba import njit
+from imucal.numerics.rk4.jit import jit
 
 
-@njit(cache=True)
+@jit()
 def calibrated(w, n, M, b):  # pragma: no cover - compiled
     """``M (w[n] - b)`` (method.md M4) and ``w[n] - b``, as six scalars."""
     dx = w[n, 0] - b[0]
@@ -22,7 +22,7 @@ def calibrated(w, n, M, b):  # pragma: no cover - compiled
     return cx, cy, cz, dx, dy, dz
 
 
-@njit(cache=True)
+@jit()
 def rk4_step(x0, y0, z0, x1, y1, z1, h):  # pragma: no cover - compiled
     """Unnormalised RK4 step ``P`` of ``dq/dt = 1/2 q (x) (0, w(t))`` for rates ``w0`` at the
     start and ``w1`` at the end of a step of ``h`` (method.md M5): ``q_(n+1) = q_n (x) P``.
@@ -54,7 +54,7 @@ def rk4_step(x0, y0, z0, x1, y1, z1, h):  # pragma: no cover - compiled
     return pw, sx * al + cx * be, sy * al + cy * be, sz * al + cz * be
 
 
-@njit(cache=True)
+@jit()
 def hamilton(qw, qx, qy, qz, pw, px, py, pz):  # pragma: no cover - compiled
     """The Hamilton product ``q (x) p``."""
     return (qw * pw - qx * px - qy * py - qz * pz,
@@ -63,7 +63,7 @@ def hamilton(qw, qx, qy, qz, pw, px, py, pz):  # pragma: no cover - compiled
             qw * pz + qx * py - qy * px + qz * pw)
 
 
-@njit(cache=True)
+@jit()
 def rotation_matrix(qw, qx, qy, qz):  # pragma: no cover - compiled
     """The rotation matrix of ``q``, row-major as nine scalars; exact for a quaternion that is
     not quite unit (a product of RK4 steps is not)."""
