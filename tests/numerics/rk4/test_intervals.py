@@ -2,6 +2,9 @@
 intervals at a time from an array that offers only gathers of rows give the same numbers to the
 bit; integrate_transitions on the edge cases."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from row_only import RowOnly
@@ -107,3 +110,14 @@ def test_integrate_transitions_composes_over_consecutive_intervals():
                          pw * qz + px * qy - py * qx + pz * qw])
     np.testing.assert_allclose(q[0] * np.sign(q[0, 0]), composed * np.sign(composed[0]),
                                atol=1e-13)
+
+
+def test_numba_is_imported_by_the_first_pass_not_by_the_package():
+    # ~0.7 s CPU (numba and the kernels' cache): not paid by --help or an accelerometer-only run
+    code = ("import sys, numpy as np, imucal.cli, imucal.pipeline\n"
+            "from imucal.numerics.rk4 import Intervals\n"
+            "iv = Intervals(np.zeros((3, 3)), np.arange(3.0), np.array([0]), np.array([2]))\n"
+            "assert 'numba' not in sys.modules\n"
+            "iv.raw_turn(np.zeros(3))\n"
+            "assert 'numba' in sys.modules\n")
+    subprocess.run([sys.executable, "-c", code], check=True)
