@@ -11,7 +11,8 @@ a compiled loop over each interval's samples (numba), not vector operations acro
   or each under its own, the sensitivity of the rotation to the model, the largest step, the
   turn of the raw rate);
 - :mod:`.intervals`: :class:`Intervals`, the samples read where they lie or gathered a chunk
-  of intervals at a time, for the kernels.
+  of intervals at a time, for the kernels;
+- :mod:`.jit`: ``numba.njit`` with numba's on-disk cache wherever it can write one.
 
 Only :mod:`.intervals` is imported with this package: numba is imported by the first pass.
 """
