@@ -14,8 +14,8 @@ For each session and round, the baseline's then this checkout's:
   the stage is timed by itself (wall, and CPU from ``time.process_time``).
 
 The minimum over the rounds is reported, with this checkout's figure over the baseline's.
-``gyro_speed.py passes SESSION`` (run by either install's python) prints the CPU seconds of
-each kind of pass over the turns instead.
+``gyro_speed.py passes SESSION [OUT.npz]`` (run by either install's python) prints the CPU
+seconds of each kind of pass over the turns instead (and writes their outputs, to compare).
 """
 
 from __future__ import annotations
@@ -61,9 +61,12 @@ def stage(session: str) -> dict:
     return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}
 
 
-def passes(session: str, repeat: int = 2) -> dict:
-    """CPU seconds of each kind of pass over the turns of ``session`` (mean of ``repeat``),
-    under a model near the identity (run by the install being measured)."""
+def passes(session: str, repeat: int = 2, save: str | None = None) -> dict:
+    """CPU seconds of each kind of pass over the turns of ``session`` (mean of ``repeat``,
+    after one round untimed: numba's import and cache load, page faults), under a model near
+    the identity (run by the install being measured: main's numpy layout before 2026-11-23 or
+    the compiled kernels). With ``save``, each pass's output is written there (.npz) to
+    compare the two installs' numbers."""
     import numpy as np
 
     import imucal.pipeline as pipeline
@@ -86,16 +89,37 @@ def passes(session: str, repeat: int = 2) -> dict:
     tr = Transitions(w, t, blocks)
     m = SensorModel(T=np.eye(3), K=np.full(3, 1.01), b=np.array([0.01, 0.0, -0.01]))
     M, b = np.tile(m.matrix, (len(tr), 1, 1)), np.tile(m.b, (len(tr), 1))
-    runs = {"sensitivity": lambda: tr.layout.sensitivity(tr.rates, m.matrix, m.b),
-            "integration": lambda: tr.layout.integrate(tr.rates, [(m.matrix, m.b)]),
+    scales = np.exp(np.linspace(np.log(0.5), np.log(4.0), 13))  # the scale search's grid
+    if hasattr(tr, "turns"):  # the compiled kernels
+        def sensitivity():
+            return tuple(tr.turns.sensitivity(m.matrix, m.b))
+
+        def scale_grid():
+            return tr.rotations_many([SensorModel(np.eye(3), np.full(3, s), m.b)
+                                      for s in scales])
+    else:  # the numpy layout
+        def sensitivity():
+            return tuple(tr.layout.sensitivity(tr.rates, m.matrix, m.b))[:2]
+
+        def scale_grid():
+            iso = tr.isotropic(m.b)
+            return np.stack([iso(s) for s in scales])
+    runs = {"sensitivity": sensitivity,
+            "integration": lambda: tr.rotations_many([m]),
             "held_out": lambda: tr.rotations_each(M, b),
-            "max_step": lambda: tr.max_step_angle(m)}
+            "max_step": lambda: tr.max_step_angle(m),
+            "scale_grid_13": scale_grid}
+    results = {name: run() for name, run in runs.items()}
     out = dict.fromkeys(runs, 0.0)
     for _ in range(repeat):
         for name, run in runs.items():
             c0 = time.process_time()
             run()
             out[name] += (time.process_time() - c0) / repeat
+    if save:
+        q, S = results.pop("sensitivity")
+        np.savez(save, sensitivity_q=q, sensitivity_S=S,
+                 **{k: np.asarray(v) for k, v in results.items()})
     return out
 
 
@@ -137,8 +161,11 @@ def compare(baseline: Path, sessions: list[str], rounds: int) -> None:
 
 
 def main() -> None:
-    if len(sys.argv) == 3 and sys.argv[1] in ("stage", "passes"):
-        print(json.dumps({"stage": stage, "passes": passes}[sys.argv[1]](sys.argv[2])))
+    if len(sys.argv) == 3 and sys.argv[1] == "stage":
+        print(json.dumps(stage(sys.argv[2])))
+        return
+    if len(sys.argv) in (3, 4) and sys.argv[1] == "passes":
+        print(json.dumps(passes(sys.argv[2], save=sys.argv[3] if len(sys.argv) == 4 else None)))
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sessions", nargs="+")

@@ -469,13 +469,14 @@ def complex_step_jacobian(p: dict, theta, h: float = 1e-20):
     steps, quaternion products, normalisation as q / sqrt(sum q^2)) is analytic, so
     ``Im r(theta + i h e_j) / h`` is the derivative to rounding, with no step-size error.
     One complex evaluation per parameter, each about four real ones."""
+    import numba
     import numpy as np
 
-    from imucal.numerics.rk4 import mul, product_rows, rk4_raw
-    from imucal.numerics.rk4.lazy import slab_ranges
+    from imucal.numerics.rk4 import kernels
 
     tr, u_prev, model_of = p["tr"], p["u_prev"], p["model_of"]
-    layout = tr.layout
+    turns = tr.turns
+    integrate = numba.njit(kernels.integrate.py_func)  # the product's loop, for complex models
     cols = []
     for j in range(len(theta)):
         th = np.asarray(theta, complex).copy()
@@ -483,21 +484,9 @@ def complex_step_jacobian(p: dict, theta, h: float = 1e-20):
         model = model_of(th)
         M = np.asarray(model.T, complex) * np.asarray(model.K, complex)[None, :]
         b = np.asarray(model.b, complex)
-
-        def cal(w, M=M, b=b):
-            d = [w[i] - b[i] for i in range(3)]
-            return tuple(d[0] * M[r, 0] + d[1] * M[r, 1] + d[2] * M[r, 2] for r in range(3))
-
-        q = np.zeros((len(tr), 4), complex)
-        for bucket, src in zip(layout.buckets, tr.rates):
-            acc = None
-            for r0, r1 in slab_ranges(*bucket.dt.shape):
-                w, dt, dt2, _ = src.slab(r0, r1)
-                c = cal(w)
-                qq = product_rows(rk4_raw(tuple(x[:-1] for x in c), tuple(x[1:] for x in c),
-                                          dt, dt2))
-                acc = qq if acc is None else mul(acc, qq)
-            q[bucket.idx] = np.stack(acc, axis=-1)
+        q = np.empty((1, len(tr), 4), complex)
+        integrate(turns.x, turns.t, turns.starts, turns.ends, M[None], b[None], q)
+        q = q[0]
         q = q / np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
         w_, x_, y_, z_ = q.T
         R = np.stack([

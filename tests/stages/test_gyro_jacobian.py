@@ -1,24 +1,12 @@
-"""The gyroscope fit's Jacobian (variational equation of M5) and the prefix scan it rests on."""
+"""The gyroscope fit's Jacobian (variational equation of M5) against central differences."""
 
 import numpy as np
 import pytest
 
 from imucal.models import GYRO_THETA0
 from imucal.numerics import quaternion as quat
-from imucal.numerics.rk4 import prefix_rows
 from imucal.stages.gyro_transitions import Transitions, gyro_model_of
 from imucal.synth import make_session
-
-
-@pytest.mark.parametrize("n", [1, 2, 3, 5, 8, 13, 64, 101])
-def test_prefix_rows_equals_running_product(n):
-    rng = np.random.default_rng(n)
-    P = quat.normalize(rng.normal(size=(n, 3, 4)))
-    got = np.stack(prefix_rows(tuple(np.moveaxis(P, -1, 0))), axis=-1)
-    ref = [P[0]]
-    for i in range(1, n):
-        ref.append(quat.multiply(ref[-1], P[i]))
-    np.testing.assert_allclose(got, np.array(ref), atol=1e-14)
 
 
 def _central(res, theta, h=1e-6):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from imucal.numerics.rk4 import intervals
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.gyro_transitions import sorted_position
 from imucal.synth import make_session
@@ -21,6 +22,7 @@ class RowsOnly:
         self._a = a
         self.shape, self.ndim, self.dtype = a.shape, a.ndim, a.dtype
         self.rows_read = 0
+        self.largest = 0  # rows of the largest read
 
     def __len__(self) -> int:
         return len(self._a)
@@ -38,6 +40,7 @@ class RowsOnly:
         else:
             raise TypeError(f"not a read of rows: {key!r}")
         self.rows_read += len(out)
+        self.largest = max(self.largest, len(out))
         return out
 
     def __array__(self, *args, **kwargs):
@@ -57,11 +60,12 @@ def _fit(session, truth, w, t):
 
 
 @pytest.mark.parametrize("unit", ["rad/s", "counts"])
-def test_a_disk_backed_session_gives_the_same_calibration_to_the_bit(unit):
-    # 2 kHz: each turn's 4000 steps fill more than one slab of the 11 turns (and counts go
+def test_a_disk_backed_session_gives_the_same_calibration_to_the_bit(unit, monkeypatch):
+    # 2 kHz: each turn some 4000 steps, gathered two or three turns at a time (and counts go
     # through the scale search too)
     session, truth = make_session(poses=12, seed=4, gyro_rate=2000.0, gyro_unit=unit)
     want = _fit(session, truth, session.gyro, session.t_gyro)
+    monkeypatch.setattr(intervals, "CHUNK_ROWS", 10_000)
     w, t = RowsOnly(session.gyro), RowsOnly(session.t_gyro)
     got = _fit(session, truth, w, t)
     for a, b in [(got.model.T, want.model.T), (got.model.K, want.model.K),
@@ -70,8 +74,9 @@ def test_a_disk_backed_session_gives_the_same_calibration_to_the_bit(unit):
                  (got.report.jac, want.report.jac), (got.t_transition, want.t_transition)]:
         np.testing.assert_array_equal(a, b)
     assert got.nominal_scale == want.nominal_scale
-    # and it was read: the turns many times over, each a slab at a time
+    # and it was read: the turns many times over, a chunk of turns at a time
     assert w.rows_read > len(session.gyro) and t.rows_read > len(session.t_gyro)
+    assert 4000 < w.largest <= 10_000
 
 
 def test_sorted_positions_by_gathers_are_searchsorteds():
