@@ -524,7 +524,7 @@ def jacobian_methods(repeat: int, minutes: float) -> dict:
         return p["tr"].jacobian(p["model_of"], np.asarray(th, float), p["u_prev"])
 
     methods = {
-        "variational equation, one prefix scan (in use)": (_variational, _variational),
+        "variational equation, one compiled pass (in use)": (_variational, _variational),
         "2-point FD (used before)": (_fd2, None),
         "3-point FD": (lambda th: approx_derivative(res, th, method="3-point"),
                        lambda th: approx_derivative(res, th, method="3-point")),
