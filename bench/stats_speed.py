@@ -40,6 +40,7 @@ PROBES = {
     ("imucal.pipeline", "saturated_runs"): "saturated_runs",
     ("imucal.stages.saturation", "saturated_runs"): "saturated_runs",
     ("imucal.stages.guide", "saturated_runs"): "saturated_runs",
+    ("imucal.stages.guide", "axis_saturated_runs"): "saturated_runs",
     ("imucal.stages.guide", "gyro_full_scale"): "guide: gyro_full_scale",
     ("imucal.stages.guide", "_peak_rates"): "guide: _peak_rates",
     ("imucal.pipeline", "recording_guide"): "recording_guide",
