@@ -140,13 +140,13 @@ def _block_figures(rows: Rows, blocks: np.ndarray, g: float, *, means: bool,
 
 def _norm_error_mg(x: np.ndarray, g: float) -> np.ndarray:
     """``(|x| / g - 1) * 1000`` per row, in place on one temporary."""
-    out = _row_norms(x)
+    out = row_norms(x)
     out *= 1e3 / g
     out -= 1e3
     return out
 
 
-def _row_norms(x: np.ndarray) -> np.ndarray:
+def row_norms(x: np.ndarray) -> np.ndarray:
     """Euclidean norm of each row of an (N, 3) array, column by column (the same sums in the
     same order as ``np.linalg.norm(x, axis=1)``, without its slow reduction over short rows)."""
     out = x[:, 0] * x[:, 0]

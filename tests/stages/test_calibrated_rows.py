@@ -100,3 +100,12 @@ def test_figures_from_rows_equal_the_whole_signal_and_allocate_a_chunk() -> None
     assert np.array_equal(peaks, [norm[a:b].max() for a, b in zip(starts, ends)])
     # A run of blocks (2^18 rows) and its grid-aligned copy, not the 24 MB signal.
     assert peak - before < 0.8 * whole.acc.nbytes, peak - before
+
+
+def test_row_norms_are_numpys_norms_to_the_bit() -> None:
+    from imucal.stages.quality import row_norms
+
+    rng = np.random.default_rng(4)
+    for scale in (1e-12, 1.0, 1e150):
+        x = rng.standard_t(2, (5000, 3)) * scale
+        assert np.array_equal(row_norms(x), np.linalg.norm(x, axis=1))
