@@ -128,8 +128,9 @@ def still_noise(signals: CalibratedSignals | RowSource,
         # so each sensor's curve is its own to the bit; the still rows are read once, and
         # einsum's per-row cost is shared (it costs the same for six columns as for three).
         both = _pooled(_side_by_side(x_acc, x_gyro), clock.lo, clock.hi, width=6)
-        curves = [AllanCurve(lags=both.lags, avar=both.avar[:, c], terms=both.terms,
-                             stride=both.stride, n=both.n) for c in (slice(0, 3), slice(3, 6))]
+        curves = [AllanCurve(lags=both.lags, avar=np.ascontiguousarray(both.avar[:, c]),
+                             terms=both.terms, stride=both.stride, n=both.n)
+                  for c in (slice(0, 3), slice(3, 6))]
         return NoiseReport(accelerometer=_sensor("accelerometer", signals.acc_unit, clock,
                                                  curves[0]),
                            gyroscope=_sensor("gyroscope", "rad/s", clock, curves[1]),
