@@ -61,7 +61,7 @@ def _detect(session: Session, settings: Settings, g_in: float) -> tuple[Detectio
     still (a wrong header) is said, and the detector chooses as if nothing were stated.
     """
     run = functools.partial(tune_detector, session.acc, session.t_acc, acc_unit=session.acc_unit,
-                            g_in=g_in, source=session.source)
+                            g_in=g_in, source=session.source, rate=session.acc_rate)
     stated = session.init_still_s
     if stated is None or settings.detect.init is not None:
         return run(settings.detect), None
@@ -195,7 +195,8 @@ def _segment(session: Session, settings: Settings, still: StillBlocks, whole: Ac
                                        session.gyro_unit, settings.gyro,
                                        block_mean_cov(session.acc, blocks, acc_fit),
                                        saturated=still.gyro_saturated, no_data=turns_without_gyro(
-                                           session.t_gyro, block_times[b0:b1]))
+                                           session.t_gyro, block_times[b0:b1],
+                                           session.gyro_step))
     return Segment(index=i, blocks=(b0, b1), t_start=float(block_times[b0, 0]),
                    t_end=float(block_times[b1 - 1, 1]), acc=acc_fit, gyro=gyro_fit,
                    orientations=distinct_orientations(det.means[b0:b1] - acc_fit.model.b),

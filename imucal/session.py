@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -50,26 +51,41 @@ class Session:
     def has_gyro(self) -> bool:
         return self.gyro is not None and len(self.gyro) > 0
 
+    @cached_property
+    def acc_step(self) -> float:
+        """Median step of the accelerometer's clock (s): ``np.median(np.diff(t_acc))`` to the
+        bit, without the signal-sized steps and median's copy of them (issue 12: 346 MB at 6
+        hours of 1 kHz). Computed once per session (each pass re-reads the whole clock, a
+        spilled one from disk): the detector, the sanity checks, the guide and the report all
+        ask for it. A session is frozen, so the value cannot go stale; ``dataclasses.replace``
+        makes a new session that computes its own."""
+        return median_step(self.t_acc, [(0, len(self.t_acc))])  # row slices only
+
+    @cached_property
+    def gyro_step(self) -> float | None:
+        """Median step of the gyroscope's clock (s), as :attr:`acc_step`; the accelerometer's
+        own when the two share one time array."""
+        if not self.has_gyro:
+            return None
+        if self.t_gyro is self.t_acc:
+            return self.acc_step
+        return median_step(self.t_gyro, [(0, len(self.t_gyro))])
+
     @property
     def acc_rate(self) -> float:
-        """Median sample rate of the accelerometer in Hz: ``1 / np.median(np.diff(t_acc))`` to
-        the bit, without the signal-sized steps and median's copy of them (issue 12: 346 MB at
-        6 hours of 1 kHz)."""
-        return _median_rate(self.t_acc)
+        """Median sample rate of the accelerometer in Hz: ``1 / np.median(np.diff(t_acc))``
+        to the bit (:attr:`acc_step`)."""
+        return float(1.0 / self.acc_step)
 
     @property
     def gyro_rate(self) -> float | None:
         if not self.has_gyro:
             return None
-        return _median_rate(self.t_gyro)
+        return float(1.0 / self.gyro_step)
 
     @property
     def duration(self) -> float:
         return float(self.t_acc[-1] - self.t_acc[0])
-
-
-def _median_rate(t: np.ndarray) -> float:
-    return float(1.0 / median_step(np.asarray(t), [(0, len(t))]))
 
 
 def median_step(t: np.ndarray, ranges: Iterable[tuple[int, int]]) -> float:

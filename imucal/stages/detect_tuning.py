@@ -84,14 +84,15 @@ def local_factor(window: int, statistic: str = "thesis") -> float:
 
 
 def tune_detector(acc, t, settings: DetectSettings, *, acc_unit: str = "g", g_in: float = 1.0,
-                  source: str = "session") -> Detection:
+                  source: str = "session", rate: float | None = None) -> Detection:
     """Detect the still blocks with the values the user gave and the rest chosen from the
     data (see the module's docstring); the choice is recorded in ``Detection.tuning``.
+    ``rate``: the clock's median rate where known (``Session.acc_rate``), else found here.
 
     ``acc`` and ``t`` are read a block of rows at a time (slices and gathers): M1 is never
     held whole, the outliers are a few indices and the scan's bins a few samples each."""
     n = len(acc)
-    rate = sample_rate(t)
+    rate = sample_rate(t) if rate is None else rate
     windows = [settings.window] if settings.window else candidate_windows(rate, n)
     check_window(min(windows), n, source)
     outliers = isolated_outliers(acc)

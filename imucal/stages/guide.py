@@ -26,7 +26,8 @@ from imucal.stages.accel_cv import COVERAGE_ANGLE_DEG, axis_words, coverage
 from imucal.stages.detect import Detection
 from imucal.stages.gyro import GyroFit
 from imucal.stages.gyro_transitions import angle_between, transition_samples
-from imucal.stages.saturation import CHUNK_ROWS, saturated_runs
+from imucal.stages.quality import row_norms
+from imucal.stages.saturation import CHUNK_ROWS, axis_saturated_runs
 
 # A block shorter than this many times the detector's minimum is "near the minimum": a
 # slightly stricter detector (smaller k, a longer window) drops it, and its mean averages the
@@ -179,7 +180,9 @@ def _peak_rates(rows: Callable[[int, int], np.ndarray], starts: np.ndarray, ends
         k1 = int(np.searchsorted(starts, c1, side="left"))  # turns starting before c1
         if k1 <= k0:
             continue
-        norm = np.linalg.norm(rows(c0, c1), axis=1)
+        # Column by column: np.linalg.norm's sums in the same order, without its slow
+        # reduction over rows of three (5x the time per chunk).
+        norm = row_norms(rows(c0, c1))
         for k in range(k0, k1):
             a, b = max(int(starts[k]), c0), min(int(ends[k]), c1)
             if b > a:
@@ -227,8 +230,9 @@ def gyro_full_scale(session: Session, fit: GyroFit) -> tuple[float | None, str]:
     per_unit = fit.nominal_scale if session.gyro_unit == "counts" else 1.0  # rad/s per raw
     zero = fit.model.b
     levels = []
-    for axis in range(3):  # the level each clipped axis sits at, from its zero
-        runs = saturated_runs(w[:, axis:axis + 1])  # a view, read a chunk at a time
+    # The level each clipped axis sits at, from its zero: every axis's runs in one pass over
+    # the rows (a column's view would read every row once per axis).
+    for axis, runs in enumerate(axis_saturated_runs(w)):
         if len(runs):
             levels.append(min(np.abs(w[a:b, axis] - zero[axis]).min() for a, b in runs)
                           * per_unit)

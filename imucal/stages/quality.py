@@ -56,17 +56,16 @@ def quality_figures(session: Session, det: Detection, cal_acc: Rows,
     (read a run of blocks or a chunk at a time), ``held_out_mg`` (B,) each still block's norm
     error predicted by the accelerometer fit without it (:mod:`imucal.stages.accel_cv`)."""
     notes = []
-    n = len(session.acc)
-    after_blocks = (np.linalg.norm(_block_means(cal_acc, det.blocks), axis=1) / g_out - 1) * 1e3
-    after_samples = _block_samples_norm_rms(cal_acc, n, g_out, det.blocks)
+    means, after_samples = _block_figures(cal_acc, det.blocks, g_out, means=True)
+    after_blocks = (np.linalg.norm(means, axis=1) / g_out - 1) * 1e3
     before_blocks = before_samples = None
     if session.acc_unit == "counts":
         notes.append("accelerometer in raw counts: no 'before' static norm error without a "
                      "nominal sensitivity")
     else:
         before_blocks = (np.linalg.norm(det.means, axis=1) / g_in - 1) * 1e3
-        before_samples = _block_samples_norm_rms(lambda a, b: session.acc[a:b], n, g_in,
-                                                 det.blocks)
+        before_samples = _block_figures(lambda a, b: session.acc[a:b], det.blocks, g_in,
+                                        means=False)[1]
 
     angle = angle_cv = None
     if gyro_fits:
@@ -93,55 +92,61 @@ def quality_figures(session: Session, det: Detection, cal_acc: Rows,
         block_norm_error_before_mg=before_blocks, notes=tuple(notes))
 
 
-def _block_means(rows: Rows, blocks: np.ndarray) -> np.ndarray:
-    """:func:`block_means` of the signal ``rows`` gives, over runs of consecutive blocks of
-    about ``RUN_ROWS`` rows (a longer block alone): each block's sum is reduced over its own
-    rows as on the whole signal, so the means are the same to the bit."""
+def _block_figures(rows: Rows, blocks: np.ndarray, g: float, *, means: bool,
+                   chunk: int = 1 << 16) -> tuple[np.ndarray, float]:
+    """:func:`block_means` of the signal ``rows(lo, hi)`` gives (if ``means``) and the RMS over
+    the samples inside the blocks of ``(|x| / g - 1) * 1000`` (mg), from one read of each run
+    of consecutive blocks of about ``RUN_ROWS`` rows (a longer block alone): only the blocks'
+    rows are read, once for both figures (the calibrated rows are computed on request).
+
+    The same to the bit as each figure on the whole signal: a block's sum is reduced over its
+    own rows; the sum of squares is grouped as a pass over ``chunk``-row chunks of the signal
+    groups it (each block's part in each chunk summed over its own rows, the parts of one chunk
+    summed together, the chunks added in order), whatever run the parts were read in."""
     if len(blocks) == 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), float("nan")
     out = []
+    parts: dict[int, list[np.ndarray]] = {}  # chunk -> its blocks' parts' sums, in order
     i, n_blocks = 0, len(blocks)
     while i < n_blocks:
         j = i + 1 + int(np.searchsorted(blocks[i + 1:, 1], blocks[i, 0] + RUN_ROWS,
                                         side="right"))
         lo, hi = int(blocks[i, 0]), int(blocks[j - 1, 1])
-        out.append(block_means(rows(lo, hi), blocks[i:j] - lo))
-        i = j
-    return np.concatenate(out)
-
-
-def _block_samples_norm_rms(rows: Rows, n_rows: int, g: float, blocks: np.ndarray,
-                            chunk: int = 1 << 16) -> float:
-    """RMS over the samples inside the blocks of ``(|x| / g - 1) * 1000`` (mg), ``chunk``
-    rows of ``x`` (``rows(lo, hi)``, ``n_rows`` in all) at a time: per-block sums of squares,
-    no mask, no temporary the length of ``x``."""
-    n = int(np.sum(blocks[:, 1] - blocks[:, 0])) if len(blocks) else 0
-    if n == 0:
-        return float("nan")
-    starts, ends = blocks[:, 0], blocks[:, 1]
-    total = 0.0
-    for c0 in range(0, n_rows, chunk):
-        c1 = min(n_rows, c0 + chunk)
-        i0 = int(np.searchsorted(ends, c0, side="right"))  # first block ending after c0
-        i1 = int(np.searchsorted(starts, c1, side="left"))  # blocks starting before c1
-        if i1 <= i0:
-            continue
-        dev = _norm_error_mg(rows(c0, c1), g)
+        x = rows(lo, hi)
+        if means:
+            out.append(block_means(x, blocks[i:j] - lo))
+        dev = _norm_error_mg(x, g)
         np.multiply(dev, dev, out=dev)
-        total += float(np.sum(segment_sums(dev, np.maximum(starts[i0:i1], c0) - c0,
-                                           np.minimum(ends[i0:i1], c1) - c0)))
-    return float(np.sqrt(total / n))
+        # Each block cut at the chunk edges: (chunk, start, end) of every part, in order.
+        s, e = blocks[i:j, 0], blocks[i:j, 1]
+        c0, c1 = s // chunk, (e - 1) // chunk
+        count = c1 - c0 + 1
+        first = np.repeat(np.cumsum(count) - count, count)
+        ck = np.repeat(c0, count) + np.arange(int(count.sum())) - first
+        ps = np.maximum(np.repeat(s, count), ck * chunk)
+        pe = np.minimum(np.repeat(e, count), (ck + 1) * chunk)
+        sums = segment_sums(dev, ps - lo, pe - lo)
+        del x, dev  # not held while the next run is read
+        cut = np.flatnonzero(np.diff(ck)) + 1
+        for c, v in zip(ck[np.r_[0, cut]].tolist(), np.split(sums, cut)):
+            parts.setdefault(c, []).append(v)
+        i = j
+    total = 0.0
+    for c in sorted(parts):
+        total += float(np.sum(np.concatenate(parts[c])))
+    n = int(np.sum(blocks[:, 1] - blocks[:, 0]))
+    return (np.concatenate(out) if means else np.zeros((0, 3))), float(np.sqrt(total / n))
 
 
 def _norm_error_mg(x: np.ndarray, g: float) -> np.ndarray:
     """``(|x| / g - 1) * 1000`` per row, in place on one temporary."""
-    out = _row_norms(x)
+    out = row_norms(x)
     out *= 1e3 / g
     out -= 1e3
     return out
 
 
-def _row_norms(x: np.ndarray) -> np.ndarray:
+def row_norms(x: np.ndarray) -> np.ndarray:
     """Euclidean norm of each row of an (N, 3) array, column by column (the same sums in the
     same order as ``np.linalg.norm(x, axis=1)``, without its slow reduction over short rows)."""
     out = x[:, 0] * x[:, 0]

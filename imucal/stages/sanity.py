@@ -254,11 +254,14 @@ def split_at_gaps(det: Detection, acc, t) -> Detection:
 # --- gyroscope coverage ------------------------------------------------------------------------
 
 
-def turns_without_gyro(t_gyro: np.ndarray, block_times: np.ndarray) -> np.ndarray:
+def turns_without_gyro(t_gyro: np.ndarray, block_times: np.ndarray,
+                       step: float | None = None) -> np.ndarray:
     """(B-1,) bool: the turn between still blocks k and k+1 is not fully covered by gyroscope
-    samples (it starts before the first, ends after the last or crosses a gap)."""
+    samples (it starts before the first, ends after the last or crosses a gap). ``step``: the
+    clock's median step where known (``Session.gyro_step``), else found here."""
     a, b = block_times[:-1, 1], block_times[1:, 0]
-    step = median_step(t_gyro, [(0, len(t_gyro))])  # np.median(np.diff(t_gyro)), in blocks
+    if step is None:  # np.median(np.diff(t_gyro)), in blocks
+        step = median_step(t_gyro, [(0, len(t_gyro))])
     outside = (a < value_at(t_gyro, 0) - step) | (b > value_at(t_gyro, -1) + step)
     gaps = time_gaps(t_gyro)
     g0, g1 = t_gyro[gaps], t_gyro[gaps + 1]
@@ -277,7 +280,7 @@ def blocks_without_gyro(t_gyro: np.ndarray, block_times: np.ndarray) -> np.ndarr
 def coverage_warning(session: Session, block_times: np.ndarray) -> RunWarning | None:
     """Which still blocks and turns have no gyroscope data, or None when all have."""
     no_block = blocks_without_gyro(session.t_gyro, block_times)
-    no_turn = turns_without_gyro(session.t_gyro, block_times)
+    no_turn = turns_without_gyro(session.t_gyro, block_times, session.gyro_step)
     if not no_block.any() and not no_turn.any():
         return None
     tg, ta = session.t_gyro, session.t_acc

@@ -13,38 +13,75 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal.numerics.rows import column_extremes
-
 CHUNK_ROWS = 1 << 18
 
 
 def saturated_runs(x, min_run: int = 5, chunk: int = CHUNK_ROWS) -> np.ndarray:
     """(R, 2) sorted, disjoint ``[start, end)`` runs of the samples where an axis sits at its
-    extreme value for ``min_run`` or more samples in a row (any axis, either extreme).
+    extreme value for ``min_run`` or more samples in a row (any axis, either extreme): the
+    union of :func:`axis_saturated_runs`."""
+    return _union(np.concatenate([np.zeros((0, 2), np.int64),
+                                  *axis_saturated_runs(x, min_run, chunk)]))
+
+
+def axis_saturated_runs(x, min_run: int = 5, chunk: int = CHUNK_ROWS) -> list[np.ndarray]:
+    """Per axis ``j``, the runs :func:`saturated_runs` finds in the column ``x[:, j:j+1]``
+    alone (sorted, disjoint ``[start, end)``, ``min_run`` samples or more at the column's
+    minimum or maximum).
 
     Noise makes an unclipped signal touch its own maximum once or twice; a clipped one sits at
-    it. Two passes over ``x``, a chunk of rows at a time (row slices only): its extremes, then
-    where each axis equals them (a few indices, unless clipped), cut into runs and joined where
-    they meet at a chunk's edge, so a run is measured whole before the ``min_run`` test.
-    """
+    it. One pass over ``x``, a chunk of rows at a time (row slices only): each chunk's own
+    extremes and where each axis equals them (a few indices, unless clipped), kept while they
+    equal the extreme so far (a chunk holding the signal's extreme holds it as its own, so the
+    runs at the signal's extremes are all found; a second pass to learn the extremes first
+    would read the signal twice). The runs are joined where they meet at a chunk's edge, so a
+    run is measured whole before the ``min_run`` test. A NaN in a column makes its extremes
+    NaN, as numpy's, and nothing equals them: no runs there."""
     k = int(x.shape[1])
     empty = np.zeros((0, 2), np.int64)
     if len(x) == 0:
-        return empty
-    lo, hi = column_extremes(x, chunk)
-    parts: list[list[np.ndarray]] = [[empty] for _ in range(2 * k)]
+        return [empty] * k
+    # Per (axis, extreme): the extreme so far (None: none yet; NaN: a NaN seen) and the runs
+    # at it.
+    best: list = [None] * (2 * k)
+    parts: list[list[np.ndarray]] = [[] for _ in range(2 * k)]
     for c0 in range(0, len(x), chunk):
         rows = np.asarray(x[c0:c0 + chunk])
-        for e, extreme in enumerate((hi, lo)):
-            at = np.flatnonzero(rows == extreme)  # every axis at once: (row, axis) flattened
+        # Column by column: numpy reduces an (n, 3) array along its rows far slower.
+        for e, reduce in enumerate((np.max, np.min)):
+            ext = np.array([reduce(rows[:, j]) for j in range(k)], dtype=rows.dtype)
+            new = [j for j in range(k) if _at_least(ext[j], best[2 * j + e], e)]
+            if not new:
+                continue
+            at = np.flatnonzero(rows == ext)  # every axis at once: (row, axis) flattened
             row, axis_of = at // k, at % k
-            for axis in range(k):
-                parts[2 * axis + e].append(_runs_at(row[axis_of == axis]) + c0)
-    found = [empty]
-    for p in parts:
-        runs = _union(np.concatenate(p))
-        found.append(runs[(runs[:, 1] - runs[:, 0]) >= min_run])
-    return _union(np.concatenate(found))
+            for j in new:
+                i = 2 * j + e
+                if best[i] is None or ext[j] != best[i]:  # a new extreme: the old runs go
+                    best[i], parts[i] = ext[j], []
+                parts[i].append(_runs_at(row[axis_of == j]) + c0)
+    out = []
+    for j in range(k):
+        found = [empty]
+        for i in (2 * j, 2 * j + 1):
+            if best[i] is None or best[i] != best[i]:  # NaN: no runs
+                continue
+            runs = _union(np.concatenate([empty, *parts[i]]))
+            found.append(runs[(runs[:, 1] - runs[:, 0]) >= min_run])
+        out.append(_union(np.concatenate(found)))
+    return out
+
+
+def _at_least(v, best, e: int) -> bool:
+    """Does a chunk's extreme ``v`` reach the extreme so far (``e`` 0: max, 1: min)? A NaN
+    poisons the column for good (numpy's extreme is NaN then)."""
+    if best is None:
+        return True
+    if best != best:
+        return False
+    if v != v:
+        return True  # recorded as the new "extreme": NaN
+    return bool(v >= best) if e == 0 else bool(v <= best)
 
 
 def _runs_at(idx: np.ndarray) -> np.ndarray:

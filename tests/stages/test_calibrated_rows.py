@@ -12,11 +12,11 @@ import tracemalloc
 import numpy as np
 
 from imucal.models import SensorModel
-from imucal.numerics.windows import block_means
+from imucal.numerics.windows import block_means, segment_sums
 from imucal.session import Session
 from imucal.stages.apply import CHUNK_ROWS, Calibration, SegmentModels
 from imucal.stages.guide import _peak_rates
-from imucal.stages.quality import _block_means, _block_samples_norm_rms
+from imucal.stages.quality import _block_figures, _norm_error_mg
 
 N = 1_000_000  # 24 MB of (N, 3) float64
 
@@ -55,6 +55,22 @@ def test_rows_are_the_whole_calibration_to_the_bit() -> None:
         assert np.array_equal(cal.rows(s, "gyro", lo, hi), whole.gyro[lo:hi])
 
 
+def _chunked_norm_rms(x: np.ndarray, g: float, blocks: np.ndarray, chunk: int = 1 << 16
+                      ) -> float:
+    """The samples' norm RMS as a pass over the whole signal a chunk at a time computes it
+    (each block's part in each chunk summed, a chunk's parts together, the chunks in order)."""
+    total, starts, ends = 0.0, blocks[:, 0], blocks[:, 1]
+    for c0 in range(0, len(x), chunk):
+        c1 = min(len(x), c0 + chunk)
+        i0 = int(np.searchsorted(ends, c0, side="right"))
+        i1 = int(np.searchsorted(starts, c1, side="left"))
+        if i1 > i0:
+            dev = _norm_error_mg(x[c0:c1], g) ** 2
+            total += float(np.sum(segment_sums(dev, np.maximum(starts[i0:i1], c0) - c0,
+                                               np.minimum(ends[i0:i1], c1) - c0)))
+    return float(np.sqrt(total / np.sum(ends - starts)))
+
+
 def test_figures_from_rows_equal_the_whole_signal_and_allocate_a_chunk() -> None:
     cal, s = _case()
     whole = cal.apply(s)
@@ -71,16 +87,25 @@ def test_figures_from_rows_equal_the_whole_signal_and_allocate_a_chunk() -> None
     try:
         before, _ = tracemalloc.get_traced_memory()
         tracemalloc.reset_peak()
-        means = _block_means(rows, blocks)
-        rms = _block_samples_norm_rms(rows, N, 1.0, blocks)
+        means, rms = _block_figures(rows, blocks, 1.0, means=True)
         starts, ends = blocks[:-1, 1] - 1, blocks[1:, 0] + 1
         peaks = _peak_rates(gyro_rows, starts, ends, N)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
     assert np.array_equal(means, block_means(whole.acc, blocks))
-    assert rms == _block_samples_norm_rms(lambda a, b: whole.acc[a:b], N, 1.0, blocks)
+    assert rms == _chunked_norm_rms(whole.acc, 1.0, blocks)
+    assert _block_figures(lambda a, b: whole.acc[a:b], blocks, 1.0, means=False)[1] == rms
     norm = np.linalg.norm(whole.gyro, axis=1)
     assert np.array_equal(peaks, [norm[a:b].max() for a, b in zip(starts, ends)])
     # A run of blocks (2^18 rows) and its grid-aligned copy, not the 24 MB signal.
     assert peak - before < 0.8 * whole.acc.nbytes, peak - before
+
+
+def test_row_norms_are_numpys_norms_to_the_bit() -> None:
+    from imucal.stages.quality import row_norms
+
+    rng = np.random.default_rng(4)
+    for scale in (1e-12, 1.0, 1e150):
+        x = rng.standard_t(2, (5000, 3)) * scale
+        assert np.array_equal(row_norms(x), np.linalg.norm(x, axis=1))

@@ -196,3 +196,51 @@ def test_still_noise_reads_the_clocks_through_slices(shared) -> None:
     rows = still_noise(Source(), result.block_times)
     for a, b in ((rows.accelerometer, whole.accelerometer), (rows.gyroscope, whole.gyroscope)):
         assert np.array_equal(a.curve.avar, b.curve.avar) and a.rate_hz == b.rate_hz
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_six_columns_are_each_sensors_own_curve(seed) -> None:
+    """One clock's two sensors pooled side by side (still_noise's shared pass) give each
+    sensor's three-column curve to the bit; the runs vary in length, so the long lags take
+    the slices computed point by point (most points past their run's end) and the short ones
+    the slices computed whole."""
+    rng = np.random.default_rng(seed)
+    n = 300_000
+    x = rng.normal(0.0, 1e-3, (n, 6)) * [1, 2, 3, 50, 60, 70] + np.cumsum(
+        rng.normal(0.0, 1e-6, (n, 6)), axis=0) + [0.1, -0.2, 0.98, 1e-3, -2e-3, 5e-4]
+    starts, ends = _blocks(rng, n, 60, 12_000)
+    six = pooled_allan_variance(lambda a, b: x[a:b] * 1.0, starts, ends, width=6)
+    for cols in (slice(0, 3), slice(3, 6)):
+        part = np.ascontiguousarray(x[:, cols])
+        three = pooled_allan_variance(lambda a, b, p=part: p[a:b] * 1.0, starts, ends)
+        assert np.array_equal(six.avar[:, cols], three.avar)
+        assert np.array_equal(six.terms, three.terms) and np.array_equal(six.lags, three.lags)
+        assert np.array_equal(three.avar, _packed_reference(part, starts, ends)[1])
+
+
+def test_still_noise_shares_one_pass_for_one_clock() -> None:
+    """Row getters on one clock: the rows of both sensors are read once, side by side, and the
+    figures are those of the arrays."""
+    session, _ = make_session(poses=14, seed=8, acc_rate=200.0, gyro_rate=200.0)
+    result = imucal.calibrate(session)
+    cal = result.calibrated
+    whole = still_noise(cal, result.block_times)
+    reads = []
+
+    class Source:
+        acc_unit = cal.acc_unit
+        t_acc = t_gyro = cal.t_acc
+
+        def acc(self, a, b):
+            reads.append(("acc", a, b))
+            return cal.acc[a:b] * 1.0
+
+        def gyro(self, a, b):
+            reads.append(("gyro", a, b))
+            return cal.gyro[a:b] * 1.0
+
+    rows = still_noise(Source(), result.block_times)
+    assert [r[1:] for r in reads if r[0] == "acc"] == [r[1:] for r in reads if r[0] == "gyro"]
+    for a, b in ((rows.accelerometer, whole.accelerometer), (rows.gyroscope, whole.gyroscope)):
+        assert np.array_equal(a.curve.avar, b.curve.avar) and a.rate_hz == b.rate_hz
+        assert a.per_axis("white") == b.per_axis("white")

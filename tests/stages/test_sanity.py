@@ -228,7 +228,7 @@ def test_gyroscope_covering_half_the_session(clean5, monkeypatch):
     assert err.max() < 4.0, err
     gyro_details = report(result).segments[0].fits[1].details
     assert f"rotations ({int(g.excluded.sum())} left out of the fit)" in gyro_details
-    monkeypatch.setattr(pipeline, "turns_without_gyro", lambda t, b: np.zeros(len(b) - 1, bool))
+    monkeypatch.setattr(pipeline, "turns_without_gyro", lambda t, b, *_: np.zeros(len(b) - 1, bool))
     assert _gravity_after(imucal.calibrate(half, single_segment=True)) > 10.0
 
 
@@ -289,7 +289,7 @@ def test_gap_with_a_turn_in_it(clean5, monkeypatch):
     across = turns_without_gyro(t, result.block_times)
     assert across.sum() == 1 and np.array_equal(g.excluded, across)
     assert _gravity_after(result) < 1.5 * _gravity_after(clean) + 0.02  # 0.037 deg, clean 0.038
-    monkeypatch.setattr(pipeline, "turns_without_gyro", lambda t, b: np.zeros(len(b) - 1, bool))
+    monkeypatch.setattr(pipeline, "turns_without_gyro", lambda t, b, *_: np.zeros(len(b) - 1, bool))
     assert _gravity_after(imucal.calibrate(gapped, single_segment=True)) > \
         5 * _gravity_after(result)  # 0.475 deg with the turn across the gap fitted
 

@@ -81,3 +81,52 @@ def test_saturated_still_blocks_are_excluded():
     n_ex = int(msg[0].message.split()[1])
     assert n_ex >= 1 and len(result.detection.blocks) == n0 - n_ex
     assert result.quality.static_norm_rms_mg.after < 2.0
+
+
+def _two_pass_runs(x, min_run, chunk):
+    """saturated_runs as it was: the column extremes first, then where each axis equals them
+    (a mask of the whole column, its runs)."""
+    x = np.asarray(x)
+    found = [np.zeros((0, 2), np.int64)]
+    for j in range(x.shape[1]):
+        for ext in (x[:, j].max(), x[:, j].min()):
+            m = np.concatenate([[False], x[:, j] == ext, [False]]).astype(np.int8)
+            edges = np.flatnonzero(np.diff(m))
+            runs = edges.reshape(-1, 2)
+            found.append(runs[runs[:, 1] - runs[:, 0] >= min_run])
+    runs = np.concatenate(found)
+    mask = np.zeros(len(x) + 1, bool)
+    for a, b in runs:
+        mask[a:b] = True
+    m = np.concatenate([[False], mask[:-1], [False]]).astype(np.int8)
+    return np.flatnonzero(np.diff(m)).reshape(-1, 2)
+
+
+def test_one_pass_runs_are_the_two_pass_runs():
+    """Each chunk's own extremes kept while they equal the extreme so far: the same runs as
+    the signal's extremes found first, whatever the chunking (clipped runs across chunk edges,
+    an extreme that first appears late, integer codes with many ties, a NaN column)."""
+    from imucal.stages.saturation import axis_saturated_runs, saturated_runs
+
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        n = int(rng.integers(50, 5000))
+        if trial % 3 == 0:
+            x = rng.integers(-3, 4, (n, 3)).astype(float)  # few codes: ties everywhere
+        else:
+            x = rng.normal(0, 1, (n, 3))
+        for _ in range(int(rng.integers(0, 4))):  # clipped stretches at a new extreme
+            a = int(rng.integers(0, n - 1))
+            b = min(n, a + int(rng.integers(1, 40)))
+            j = int(rng.integers(0, 3))
+            x[a:b, j] = (9.0 if rng.random() < 0.5 else -9.0)
+        chunk = int(rng.integers(1, 700))
+        runs = saturated_runs(x, 5, chunk)
+        assert np.array_equal(runs, _two_pass_runs(x, 5, chunk)), trial
+        per_axis = axis_saturated_runs(x, 5, chunk)
+        for j in range(3):
+            assert np.array_equal(per_axis[j], _two_pass_runs(x[:, j:j + 1], 5, chunk)), trial
+    x = np.zeros((100, 2))
+    x[50, 0] = np.nan  # numpy's extremes of column 0 are NaN: nothing equals them
+    per_axis = axis_saturated_runs(x, 5, 16)
+    assert len(per_axis[0]) == 0 and per_axis[1].tolist() == [[0, 100]]

@@ -57,16 +57,19 @@ def test_recording_allocates_well_under_the_session(long_result, tmp_path, monke
     session = s.acc.nbytes + s.gyro.nbytes + s.t_acc.nbytes + s.t_gyro.nbytes  # 16 MB
     assert len(s.t_acc) > 30 * S.CHUNK
 
-    # The summary's report is the core's (the CLI prints it too); below a million samples its
+    # The summary's report is the core's (the CLI prints it too); below a million samples a
     # median sample rate copies the clock's steps (imucal.session.MEDIAN_SMALL): counted apart.
+    # (The session keeps its rates since calibrate found them: neither copies them now. The
+    # recording's own copy used to be its peak, 5.9 MB less the report's 4.0; its peak is now
+    # the moment the viewer makes the detector's statistic again, 3.5 MB, which that hid.)
     _, report_peak = _peak(report, r)
     path = tmp_path / "long.rrd"
     rows, peak = _peak(save_recording, r, path)
     assert "calibrated" not in r.__dict__  # the calibrated signals were never made whole
     # Before: 30 MB, 1.8 times the session (the calibrated signals whole, the magnitudes, a
-    # gather of every sample); now 1.9 MB: a few chunks, the rows kept and the magnitudes'
-    # tails the y ranges are read from.
-    assert peak - report_peak < 0.2 * session, (peak, report_peak, session)
+    # gather of every sample); now 3.5 MB: a few chunks, the detector's statistic, the rows
+    # kept and the magnitudes' tails the y ranges are read from.
+    assert peak - report_peak < 0.25 * session, (peak, report_peak, session)
     # ... and what was written is the whole recording: every entity with its rows.
     ents = rb.entities(path)
     assert all(ents[p] == n for p, n in rows.items())
