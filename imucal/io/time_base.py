@@ -215,9 +215,9 @@ def _bridge_gaps(values: np.ndarray, t: np.ndarray, label: str, source: str,
                  notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Interpolate short runs of non-finite samples (a dropped packet) and drop short runs at
     either end, where there is nothing to interpolate from; refuse anything more."""
-    bad = ~np.isfinite(values).all(axis=1)
-    if not bad.any():
+    if chunks_all(values, np.isfinite):  # the usual case: no row mask the length of the signal
         return values, t
+    bad = ~np.isfinite(values).all(axis=1)
     n, n_bad = len(values), int(bad.sum())
     step = np.diff(bad.view(np.int8), prepend=np.int8(0), append=np.int8(0))
     starts, ends = np.flatnonzero(step == 1), np.flatnonzero(step == -1)
