@@ -47,13 +47,14 @@ def test_mat5_reader_reads_what_scipy_reads(tmp_path, compressed, rows) -> None:
     assert oriented.flags.c_contiguous
 
 
+@pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("compressed", [False, True])
-def test_loading_costs_the_session_and_little_more(tmp_path, compressed) -> None:
+def test_loading_costs_the_session_and_little_more(tmp_path, compressed, threads) -> None:
     path = tmp_path / "s.mat"
     _session_file(path, compressed=compressed, rows=True, shared_time=True)
     tracemalloc.start()
     try:
-        session = load_session(path)
+        session = load_session(path, threads=threads)
         held, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -62,7 +63,10 @@ def test_loading_costs_the_session_and_little_more(tmp_path, compressed) -> None
     assert size <= held < 1.05 * size
     # scipy's path peaked at 2.1x the session (the file, its inflated copy and scipy's arrays);
     # now the largest extra is the gyroscope's |w| for its unit guess (half the session here).
-    assert peak < 1.55 * size, (peak / size)  # 1.43 measured
+    # With threads the file's hash runs beside the reading: its chunks (1 MiB, one alive and
+    # one being let go) may fall on the reading's peak or not, a constant, not the session's.
+    hashing = 0 if threads == 1 else 2 << 20
+    assert peak < 1.55 * size + hashing, (peak / size)  # 1.43 measured in one thread
 
 
 def test_different_time_arrays_stay_apart(tmp_path) -> None:
