@@ -3,7 +3,7 @@ one session, in whichever tree's python runs it: main's and a branch's side by s
 machine, alternating (see bench/detect_noise.md; the whole run: bench/batch_results.md).
 
     /work/main/.venv/bin/python bench/detect_noise.py /tmp/mn_n60.mat --label main
-    .venv/bin/python bench/detect_noise.py /tmp/mn_n60.mat --label branch [--memory]
+    .venv/bin/python bench/detect_noise.py /tmp/mn_n60.mat --label branch [--memory | --cpu]
 
 Prints one line: seconds (or MB above what was held before, with ``--memory``) of
 ``pipeline._still_blocks`` (detection, gaps, saturation, coverage), of ``tune_detector`` within
@@ -26,7 +26,10 @@ def main() -> None:
     ap.add_argument("session")
     ap.add_argument("--label", default="")
     ap.add_argument("--memory", action="store_true", help="tracemalloc peaks instead of times")
+    ap.add_argument("--cpu", action="store_true",
+                    help="this process's CPU seconds instead of wall (a shared machine's load)")
     args = ap.parse_args()
+    clock = time.process_time if args.cpu else time.perf_counter
 
     import imucal.pipeline as pl
     import imucal.result as rm
@@ -42,7 +45,7 @@ def main() -> None:
                 before, _ = tracemalloc.get_traced_memory()
                 tracemalloc.reset_peak()
                 seen = len(peaks)
-            t = time.perf_counter()
+            t = clock()
             result = f(*a, **k)
             if args.memory:
                 _, peak = tracemalloc.get_traced_memory()
@@ -50,7 +53,7 @@ def main() -> None:
                 peaks.append(peak)
                 out[name] = max(out.get(name, 0.0), (peak - before) / MB)
             else:
-                out[name] = out.get(name, 0.0) + time.perf_counter() - t
+                out[name] = out.get(name, 0.0) + clock() - t
             return result
         return g
 
@@ -60,12 +63,12 @@ def main() -> None:
     session = load_session(args.session)
     if args.memory:
         tracemalloc.start()
-    t = time.perf_counter()
+    t = clock()
     result = pl.calibrate(session)
     if not args.memory:
-        out["calibrate"] = time.perf_counter() - t
+        out["calibrate"] = clock() - t
     _ = result.noise
-    unit = "MB" if args.memory else "s"
+    unit = "MB" if args.memory else ("s CPU" if args.cpu else "s")
     print(args.label, " ".join(f"{k}={v:.2f}" for k, v in out.items()), unit, flush=True)
 
 

@@ -262,3 +262,18 @@ def centred_segment_sums(x: np.ndarray, starts: np.ndarray, ends: np.ndarray,
         s2[where[i:j]] = segment_sums(xc, s[i:j] - a, e[i:j] - a)
         i = j
     return s1, s2
+
+
+
+def variance_sumsq(zc: np.ndarray, w: int, m: int, b: int, root: bool = False) -> np.ndarray:
+    """``sum_r var_r(i)^2`` (its square root with ``root``) for ``i < m``: the unbiased variance
+    of each row of the centred ``zc`` (k, L) over the ``w`` samples from ``i``, by the running
+    sums of :func:`chunked_window_sums` restarted every ``b`` samples, and negatives clipped to
+    0, in one compiled pass with no temporaries but a row's running sums. The same values to
+    the bit as those numpy operations in turn (tests/numerics/test_windows_kernel.py)."""
+    from imucal.numerics.window_kernel import variance_sumsq_kernel  # numba: on first use
+
+    k, length = zc.shape
+    b = max(w, min(b, length + 1))
+    return variance_sumsq_kernel(zc, int(w), int(m), int(b), 1.0 / w, w / max(w - 1, 1),
+                                  bool(root))

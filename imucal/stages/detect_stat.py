@@ -16,7 +16,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.numerics.rows import floats
-from imucal.numerics.windows import WindowWork, chunked_window_sums, rolling_variance
+from imucal.numerics.windows import WindowWork, rolling_variance, variance_sumsq
 
 SPAN = 1 << 17  # M1 values computed at once (a span of rows and a window, in six rows)
 KINDS = ("thesis", "imu_tk")
@@ -119,28 +119,18 @@ def statistic_spans(rows: Rows, n: int, width: int, window: int, statistic: str 
             return
         k = int(width)
         b = max(16384, 2 * w)
-        scale = w / max(w - 1, 1)
         work = WindowWork()  # a span's buffers, reused: no fresh pages per span
         for o0 in range(0, n, span):
             o1 = min(n, o0 + span)
             if only is not None and not only(o0, o1):
                 continue
             z = _mirrored(rows, n, o0 - left, o1 - left + w - 1)  # the samples these need
-            y = work.rows(2 * k, len(z), w, b)  # each row contiguous, as a (2k, len) array's
-            y[:k] = z.T
-            y[:k] -= y[:k].mean(axis=1, keepdims=True)
-            np.multiply(y[:k], y[:k], out=y[k:])
-            m = chunked_window_sums(y, w, o1 - o0, b, work)
-            m *= 1.0 / w
-            m1, m2 = m[:k], m[k:]
-            np.multiply(m1, m1, out=m1)
-            v = np.subtract(m2, m1, out=m2)
-            np.maximum(v, 0.0, out=v)
-            v *= scale
-            out = np.multiply(v[0], v[0])
-            for j in range(1, k):
-                out += v[j] * v[j]
-            yield o0, o1, (out if statistic == "thesis" else np.sqrt(out, out=out))
+            y = work.rows(k, len(z), w, b)  # each row contiguous, the buffer reused
+            y[:] = z.T
+            y -= y.mean(axis=1, keepdims=True)
+            # M1 from the running sums of the centred rows and their squares, compiled
+            # (the same operations as chunked_window_sums and combine_variances, in order)
+            yield o0, o1, variance_sumsq(y, w, o1 - o0, b, root=statistic != "thesis")
 
 
 def _mirrored(rows: Rows, n: int, a: int, c: int) -> np.ndarray:
