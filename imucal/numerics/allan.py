@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
+from imucal.numerics.allan_kernels import centred_runs, kept_sum
+
 OVERLAP = 64  # start points per lag length: stride = m // OVERLAP (see the module docstring)
 MAX_OCTAVE = 48  # lags 1 .. 2^48 samples: more than any recording holds
 BIAS_INSTABILITY_FACTOR = 0.664  # sigma_min = sqrt(2 ln 2 / pi) B (IEEE 952 Table C.1)
@@ -237,14 +239,16 @@ def _centred_runs(rows: Rows, starts: np.ndarray, ends: np.ndarray, k: int,
 
 def _centred(xs: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.ndarray:
     """The rows ``[s[r], e[r])`` of ``xs``, each run less its mean, end to end. A C-ordered
-    run's mean is its sum in order over its rows (as ``mean(axis=0)`` sums them; ``einsum``
-    does it in a quarter of the time) over its length; other layouts take ``mean`` itself."""
+    run's mean is its sum in order over its rows (as ``mean(axis=0)`` sums them) over its
+    length, compiled (``allan_kernels.centred_runs``); other layouts take ``mean`` itself."""
     out = np.empty((int(np.sum(e - s)), xs.shape[1]))
+    if xs.flags.c_contiguous and xs.dtype == np.float64:
+        centred_runs(xs, s.astype(np.int64), e.astype(np.int64), out)
+        return out
     p = 0
     for a, b in zip(s.tolist(), e.tolist()):
         seg = xs[a:b]
-        mean = np.einsum("ij->j", seg) / (b - a) if seg.flags.c_contiguous else seg.mean(axis=0)
-        np.subtract(seg, mean, out=out[p:p + b - a])
+        np.subtract(seg, seg.mean(axis=0), out=out[p:p + b - a])
         p += b - a
     return out
 
@@ -264,7 +268,6 @@ class _PooledSums:
         self.next = [0] * len(lags)  # per lag, the first start point not yet summed
         self.total = [np.zeros(k) for _ in lags]
         self.count = [0] * len(lags)
-        self.d = np.empty((chunk, k))  # one slice's second differences
 
     @property
     def win(self) -> np.ndarray:
@@ -301,10 +304,9 @@ class _PooledSums:
         """Start points ``[lo, hi)`` at lag ``m``: ``S_{i+2m} - 2 S_{i+m} + S_i``, zero where
         the cluster leaves its run (the last ``2m - 1`` points of each), summed in order.
 
-        ``einsum`` sums each column in order from +0, so a zero point adds nothing: where most
-        of the slice's points leave their runs (the long lags: at 2m near a block's length
-        few stay), only the points kept are computed, end to end, and summed (the same sum to
-        the bit, tested); otherwise the slice is computed whole and the rest zeroed."""
+        Only the points kept are computed and summed, per column in order from +0 (compiled,
+        ``allan_kernels.kept_sum``): the same sum to the bit as ``einsum`` over the whole slice
+        with the others set to zero (a zero adds +0 to a sum of squares: tested)."""
         S, o = self.win, self.w0
         # The runs meeting [lo, hi) and the points of each whose cluster stays in it.
         r0 = int(np.searchsorted(self.run_end, lo, side="right"))
@@ -316,25 +318,9 @@ class _PooledSums:
         kept = int(np.sum(kb - ka))
         if kept == 0:
             return  # adding einsum's +0 would change nothing
-        if 4 * kept >= 3 * (hi - lo):
-            d = self.d[:hi - lo]
-            np.multiply(S[lo + m - o:hi + m - o], 2.0, out=d)
-            np.subtract(S[lo + 2 * m - o:hi + 2 * m - o], d, out=d)
-            d += S[lo - o:hi - o]
-            a = np.minimum(np.maximum(np.maximum(ends - 2 * m + 1, starts), lo), hi) - lo
-            b = np.minimum(ends, hi) - lo  # (np.clip costs more than the zeroing)
-            for p, q in zip(a.tolist(), b.tolist()):
-                d[p:q] = 0.0
-        else:
-            p = 0
-            for x, y in zip(ka.tolist(), kb.tolist()):
-                d = self.d[p:p + y - x]  # the same operations, point by point, as above
-                np.multiply(S[x + m - o:y + m - o], 2.0, out=d)
-                np.subtract(S[x + 2 * m - o:y + 2 * m - o], d, out=d)
-                d += S[x - o:y - o]
-                p += y - x
-            d = self.d[:p]
-        self.total[j] += np.einsum("ij,ij->j", d, d)
+        # Only the kept points, compiled: the points zeroed in the numpy form added +0 to a
+        # sum of squares (unchanged), the rest the same operations in the same order.
+        self.total[j] += kept_sum(S, o, m, ka, kb)
         self.count[j] += kept
 
 
