@@ -35,8 +35,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
-from imucal.numerics.allan_kernels import centred_runs, kept_sum
-
 OVERLAP = 64  # start points per lag length: stride = m // OVERLAP (see the module docstring)
 MAX_OCTAVE = 48  # lags 1 .. 2^48 samples: more than any recording holds
 BIAS_INSTABILITY_FACTOR = 0.664  # sigma_min = sqrt(2 ln 2 / pi) B (IEEE 952 Table C.1)
@@ -243,7 +241,7 @@ def _centred(xs: np.ndarray, s: np.ndarray, e: np.ndarray) -> np.ndarray:
     length, compiled (``allan_kernels.centred_runs``); other layouts take ``mean`` itself."""
     out = np.empty((int(np.sum(e - s)), xs.shape[1]))
     if xs.flags.c_contiguous and xs.dtype == np.float64:
-        centred_runs(xs, s.astype(np.int64), e.astype(np.int64), out)
+        _kernels().centred_runs(xs, s.astype(np.int64), e.astype(np.int64), out)
         return out
     p = 0
     for a, b in zip(s.tolist(), e.tolist()):
@@ -320,7 +318,7 @@ class _PooledSums:
             return  # adding einsum's +0 would change nothing
         # Only the kept points, compiled: the points zeroed in the numpy form added +0 to a
         # sum of squares (unchanged), the rest the same operations in the same order.
-        self.total[j] += kept_sum(S, o, m, ka, kb)
+        self.total[j] += _kernels().kept_sum(S, o, m, ka, kb)
         self.count[j] += kept
 
 
@@ -407,3 +405,11 @@ def _relative_errors(design: np.ndarray, coef: np.ndarray, model: np.ndarray,
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     out[active] = CORRELATION_FACTOR * 0.5 * sd / coef[active]
     return out
+
+
+def _kernels():
+    """The compiled loops, imported on first use: numba costs ~0.7 s of CPU to import, not
+    paid by a command that computes no noise figures (``--help``, the viewer of a .rrd)."""
+    from imucal.numerics import allan_kernels
+
+    return allan_kernels
