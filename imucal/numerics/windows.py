@@ -91,26 +91,21 @@ def moving_sum(y: np.ndarray, window: int, chunk: int = 16384, group: int = 8,
     return out
 
 
-def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int,
-                        work: WindowWork | None = None) -> np.ndarray:
+def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int) -> np.ndarray:
     """``S[:, i] = z[:, i:i + w].sum(axis=1)`` for ``i < m``, by running sums restarted every
     ``b`` samples (see :func:`moving_sum`).
 
-    With ``work`` the two chunk-sized buffers are its own, reused from call to call (fresh
-    pages cost more than the sums: 14 MB a call for a span of M1), and ``z`` may already lie in
-    the first (:meth:`WindowWork.rows`): then it is not copied. The result is then a view of
-    that buffer, good until the next call. The running sums are taken a chunk of a row at a
-    time (numpy's cumsum along the last axis of a 3-d array takes twice as long), each the
-    same sequence of additions."""
+    The running sums are taken a chunk of a row at a time (numpy's cumsum along the last axis
+    of a 3-d array takes twice as long), each the same sequence of additions (the compiled M1
+    of :func:`variance_sumsq` repeats them in this order)."""
     k, length = z.shape
     b = max(w, min(b, length + 1))  # short signals: one chunk
     # Chunks cover at least length + 1 samples, so a window that runs past the last chunk
     # ends past the signal and is not an output.
     nch = -(-(length + 1) // b)
-    Y, E = (work or WindowWork()).arrays(k, nch, b)
+    Y, E = np.empty((k, nch, b)), np.empty((k, nch, b))
     flat = Y.reshape(k, -1)
-    if not np.shares_memory(z, Y):
-        flat[:, :length] = z
+    flat[:, :length] = z
     flat[:, length:] = 0.0
     need = min(m + w - (nch - 1) * b, b)  # of the last chunk: the outputs read no further
     for r in range(k):
@@ -125,26 +120,6 @@ def chunked_window_sums(z: np.ndarray, w: int, m: int, b: int,
     np.subtract(E[:, 1:, :w], E[:, :-1, b - w:], out=S[:, :-1, b - w:])
     S[:, :-1, b - w:] += T[:, :-1, None]
     return S.reshape(k, -1)[:, :m]
-
-
-class WindowWork:
-    """The buffers of :func:`chunked_window_sums`, kept from one call to the next."""
-
-    def __init__(self) -> None:
-        self._y: np.ndarray | None = None
-        self._e: np.ndarray | None = None
-
-    def arrays(self, k: int, nch: int, b: int) -> tuple[np.ndarray, np.ndarray]:
-        if self._y is None or self._y.shape != (k, nch, b):
-            self._y, self._e = np.empty((k, nch, b)), np.empty((k, nch, b))
-        return self._y, self._e
-
-    def rows(self, k: int, length: int, w: int, b: int) -> np.ndarray:
-        """``(k, length)`` rows inside the first buffer, for ``chunked_window_sums`` of ``k``
-        rows of ``length`` samples over windows of ``w`` (not copied there again)."""
-        b = max(w, min(b, length + 1))
-        y, _ = self.arrays(k, -(-(length + 1) // b), b)
-        return y.reshape(k, -1)[:, :length]
 
 
 def runs_of_true(mask: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.numerics.rows import floats
-from imucal.numerics.windows import WindowWork, rolling_variance, variance_sumsq
+from imucal.numerics.windows import rolling_variance, variance_sumsq
 
 SPAN = 1 << 17  # M1 values computed at once (a span of rows and a window, in six rows)
 KINDS = ("thesis", "imu_tk")
@@ -119,13 +119,14 @@ def statistic_spans(rows: Rows, n: int, width: int, window: int, statistic: str 
             return
         k = int(width)
         b = max(16384, 2 * w)
-        work = WindowWork()  # a span's buffers, reused: no fresh pages per span
+        y = np.empty((k, 0))  # a span's rows, each contiguous; reused: no fresh pages a span
         for o0 in range(0, n, span):
             o1 = min(n, o0 + span)
             if only is not None and not only(o0, o1):
                 continue
             z = _mirrored(rows, n, o0 - left, o1 - left + w - 1)  # the samples these need
-            y = work.rows(k, len(z), w, b)  # each row contiguous, the buffer reused
+            if y.shape[1] != len(z):
+                y = np.empty((k, len(z)))
             y[:] = z.T
             y -= y.mean(axis=1, keepdims=True)
             # M1 from the running sums of the centred rows and their squares, compiled
