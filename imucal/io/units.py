@@ -12,6 +12,7 @@ import re
 import numpy as np
 
 from imucal.errors import ImucalError
+from imucal.numerics.order_stats import values_at_ranks
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9,
               "100us": 1e-4}  # the last only as a name implies it (Xsens SampleTimeFine)
@@ -297,29 +298,6 @@ def _order_statistics(x: np.ndarray, values, groups: list[list[int]],
             kept += len(got)
         if kept > n // 8:  # the brackets hold too much: no saving left
             return None
-    out = [_pick([r - below[g] for r in ranks], known[g], counts[g], inside[g])
+    out = [values_at_ranks([r - below[g] for r in ranks], known[g], counts[g], inside[g])
            for g, ranks in enumerate(groups)]
     return None if any(p is None for p in out) else out  # type: ignore[return-value]
-
-
-def _pick(ranks: list[int], known: np.ndarray, counts: np.ndarray,
-          inside: list[np.ndarray]) -> list[float] | None:
-    """The values at ``ranks`` (within the bracket) of the multiset of ``known`` values (sorted,
-    distinct, each ``counts`` times) and the ``inside`` values (none equal to a known one)."""
-    rest = np.concatenate(inside) if inside else np.zeros(0)
-    rest.sort()
-    cum = np.concatenate([[0], np.cumsum(counts)])  # known items before block j: cum[j]
-    starts = np.searchsorted(rest, known) + cum[:-1]  # block j's first rank in the merge
-    out = []
-    for r in ranks:
-        if r < 0:
-            return None
-        j = int(np.searchsorted(starts, r, side="right")) - 1
-        if j >= 0 and r < starts[j] + counts[j]:
-            out.append(float(known[j]))
-            continue
-        i = r - int(cum[j + 1])  # every known block up to j ends before rank r
-        if i >= len(rest):
-            return None
-        out.append(float(rest[i]))
-    return out

@@ -73,14 +73,14 @@ def ranked_values(chunks: Chunks, n: int, groups: list[list[int]], sample: int
             return None
     out = []
     for g, ranks in enumerate(groups):
-        picked = _pick([r - below[g] for r in ranks], known[g], counts[g], inside[g])
+        picked = values_at_ranks([r - below[g] for r in ranks], known[g], counts[g], inside[g])
         if picked is None:
             return None
         out.append(picked)
     return out
 
 
-def _pick(ranks: list[int], known: np.ndarray, counts: np.ndarray,
+def values_at_ranks(ranks: list[int], known: np.ndarray, counts: np.ndarray,
           inside: list[np.ndarray]) -> list[float] | None:
     """The values at ``ranks`` (within the bracket) of the multiset of ``known`` values (sorted,
     distinct, each ``counts`` times) and the ``inside`` values (none equal to a known one)."""
