@@ -9,6 +9,7 @@ from functools import cached_property
 import numpy as np
 
 from imucal.numerics.order_stats import Chunks, ranked_values
+from imucal.streams import Stream
 
 ACC_UNITS = ("g", "m/s^2", "counts")
 GYRO_UNITS = ("rad/s", "deg/s", "counts")
@@ -40,6 +41,12 @@ class Session:
     # Where the signals are held when not in the process's memory (a long recording's arrays
     # mapped from a temporary file, imucal.io.spill), for the report; None: in memory.
     storage: str | None = None
+    # A recording of many streams (imucal.streams): which accelerometer and gyroscope were taken
+    # and from where (one line each, for calib.json and the report), and the streams the file
+    # holds beside them (a magnetometer, a thermometer, other IMUs). Empty for a table of one
+    # accelerometer and one gyroscope.
+    chosen: tuple[str, ...] = ()
+    others: tuple[Stream, ...] = ()
 
     def __post_init__(self) -> None:
         if self.acc_unit not in ACC_UNITS:

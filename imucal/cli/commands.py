@@ -84,7 +84,7 @@ def calibrate(
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    inputs = [session, options["gyro"]]
+    inputs = [session, load_kw["gyro_path"]]
     check_inputs(inputs)
     if calibrated is not None:
         from imucal.io.export import output_format
@@ -150,7 +150,8 @@ def apply(
     from imucal.io.export import output_format
 
     output_format(out)
-    inputs = [calibration, session, options["gyro"]]
+    load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
+    inputs = [calibration, session, load_kw["gyro_path"]]
     check_inputs(inputs)
     from imucal.io.atomic import Transaction
 
@@ -161,7 +162,6 @@ def apply(
     with tx:
         with progress.stage(f"reading {calibration.name}"):
             cal = imucal.load_calibration(calibration)
-        load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
         with progress.stage(f"loading {session.name}"):
             sess = imucal.load_session(session, **load_kw)
         with progress.stage("applying"):
@@ -322,7 +322,7 @@ def view(
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    gyro = options["gyro"]
+    gyro = load_kw["gyro_path"]
     load_defaults = load_kwargs(**{name: default for name, _, default in INPUT_OPTIONS})
     load_options = {key: v for key, v in load_kw.items() if v != load_defaults[key]}
     overrides = {key: v for key, v in settings.items() if v != DEFAULTS[key]}

@@ -106,9 +106,9 @@ def batch(
     A session that fails is a row with its error; re-running skips sessions whose input
     (sha256), settings and spec are unchanged. Exit 1 when a session failed or broke the spec.
     """
-    if options["gyro"] is not None:
+    if options["gyro"] is not None and load_kwargs(**pick(options, INPUT_OPTIONS))["gyro_path"]:
         raise usage_error("--gyro names one file; in a batch each session file holds its "
-                          "gyroscope", "'--gyro'")
+                          "gyroscope (a log's gyroscope stream may be named)", "'--gyro'")
     if workers is not None and scheduler is not None:
         raise usage_error("--workers sizes the LocalCluster; an existing cluster (--scheduler) "
                           "is used as it is", "'--workers'")

@@ -173,9 +173,24 @@ SessionArg = Annotated[Path, typer.Argument(
     metavar="SESSION", show_default=False,
     help="Recording: .mat (v5 or v7.3), CSV/TSV/text or Parquet; the format is read from the "
          "content, not the name.")]
-GyroOpt = Annotated[Path | None, typer.Option(
-    "--gyro", metavar="FILE", rich_help_panel=_IN,
-    help="Separate gyroscope file (SESSION then holds the accelerometer).")]
+GyroOpt = Annotated[str | None, typer.Option(
+    "--gyro", metavar="FILE|STREAM", rich_help_panel=_IN, show_default=False,
+    help="A separate gyroscope file (SESSION then holds the accelerometer), or the gyroscope "
+         "stream of a log: a topic (/imu/data_raw), sensor_gyro:1, IMU2 [default: the chosen "
+         "accelerometer's IMU].")]
+AccOpt = Annotated[str | None, typer.Option(
+    "--acc", metavar="STREAM", rich_help_panel=_IN, show_default=False,
+    help="The accelerometer stream of a log: a ROS topic (/imu/data_raw), a ULog "
+         "sensor_accel:1, a DataFlash IMU2, or its position (0, 1, ...) [default: the first; "
+         "imucal inspect lists them].")]
+MagOpt = Annotated[str | None, typer.Option(
+    "--mag", metavar="STREAM", rich_help_panel=_IN, show_default=False,
+    help="The magnetometer stream of a log (checked to exist; recorded beside the "
+         "calibration).")]
+TempOpt = Annotated[str | None, typer.Option(
+    "--temp", metavar="STREAM", rich_help_panel=_IN, show_default=False,
+    help="The temperature stream of a log (checked to exist; recorded beside the "
+         "calibration).")]
 RateOpt = Annotated[float | None, typer.Option(
     "--rate", metavar="HZ", callback=positive, rich_help_panel=_IN,
     help="Sample rate for files without a time column.")]
@@ -294,7 +309,8 @@ GyroSensitivityOpt = Annotated[float | None, typer.Option(
 
 # The options several commands share, in --help order: (parameter, option, default).
 INPUT_OPTIONS = (
-    ("gyro", GyroOpt, None), ("rate", RateOpt, None), ("acc_unit", AccUnitOpt, "auto"),
+    ("acc", AccOpt, None), ("gyro", GyroOpt, None), ("mag", MagOpt, None),
+    ("temp", TempOpt, None), ("rate", RateOpt, None), ("acc_unit", AccUnitOpt, "auto"),
     ("gyro_unit", GyroUnitOpt, "auto"), ("columns", ColumnsOpt, None),
     ("time_unit", TimeUnitOpt, "s"), ("acc_only", AccOnlyOpt, False),
     ("spill_dir", SpillDirOpt, None))
@@ -375,10 +391,17 @@ def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
 
 
 def load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit, acc_only=False,
-                spill_dir=None) -> dict[str, Any]:
+                spill_dir=None, acc=None, mag=None, temp=None) -> dict[str, Any]:
     from imucal.io.spill import SpillPolicy  # numpy: not for --help
 
-    return {"gyro_path": gyro, "rate": rate, "acc_unit": acc_unit, "gyro_unit": gyro_unit,
+    # --gyro names a file where one is there, else a log's stream (a table's missing gyroscope
+    # file is then said by the loader).
+    gyro_file = gyro if gyro is not None and Path(gyro).exists() else None
+    select = {"acc": acc, "gyro": None if gyro_file is not None else gyro, "mag": mag,
+              "temp": temp}
+    return {"gyro_path": None if gyro_file is None else Path(gyro_file), "rate": rate,
+            "select": {k: v for k, v in select.items() if v is not None} or None,
+            "acc_unit": acc_unit, "gyro_unit": gyro_unit,
             "columns": parse_columns(columns), "time_unit": time_unit, "acc_only": acc_only,
             "spill": None if spill_dir is None else SpillPolicy(directory=spill_dir)}
 

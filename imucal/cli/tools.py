@@ -93,7 +93,7 @@ def noise_cmd(
     """Noise figures of a still recording: overlapping Allan deviation, white noise density,
     bias instability, random walk, and Kalibr's imu.yaml noise block."""
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    check_outputs([out, kalibr, rrd], [recording, options["gyro"], calibration])
+    check_outputs([out, kalibr, rrd], [recording, load_kw["gyro_path"], calibration])
     save = None
     if rrd is not None:
         with viewer_available():
@@ -178,3 +178,33 @@ def _noise_summary(data: dict, block: dict, knotes: list[str], written: list[str
         lines += [f"  - {n}" for n in notes]
     lines += [f"wrote {w}" for w in written]
     return "\n".join(lines)
+
+
+@app.command("inspect")
+@shared_options(INPUT_OPTIONS)
+def inspect_cmd(
+    files: Annotated[list[Path], typer.Argument(
+        metavar="FILE...", show_default=False,
+        help="Recordings or logs: ROS 1/2 bags and MCAP, PX4 ULog, ArduPilot DataFlash and "
+             "MAVLink .tlog, .mat, HDF5, CSV/text, Parquet.")],
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="One JSON document on stdout, for scripts.")] = False,
+    options: dict[str, Any] = None,  # INPUT_OPTIONS (how a table is read)
+) -> int:
+    """List every sensor stream of each file (kind, name, samples, rate, unit, duration, gaps,
+    frame) and which ones the other commands take by default. Exit 1 if a file cannot be
+    read."""
+    import json
+
+    from imucal.io.inspect import as_text, inspect_file
+
+    load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
+    listed = [inspect_file(f, **load_kw) for f in files]
+    if as_json:
+        print(json.dumps([x.to_dict() for x in listed], indent=1, allow_nan=False,
+                         default=lambda v: None))
+    else:
+        for x in listed:
+            for line in as_text(x):
+                print(line)
+    return 1 if any(x.error for x in listed) else 0

@@ -117,7 +117,8 @@ def result_to_dict(result: Result) -> dict:
         "format_version": FORMAT_VERSION,
         "conventions": CONVENTIONS,
         "units": result.calibration.to_dict()["units"],
-        "source": {"file": s.source, "sha256": s.sha256},
+        "source": {"file": s.source, "sha256": s.sha256} | (
+            {"streams": list(s.chosen)} if s.chosen else {}),
         "settings": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in result.settings.to_dict().items()},
         "detector": _detector_dict(result),

@@ -75,8 +75,14 @@ def _header_end(path: Path) -> int:
 def _plan(path: Path) -> _Plan:
     if not path.exists():
         raise ImucalError("file not found", source=str(path))
+    from imucal.io.formats import sniff
+
+    if path.is_dir() and sniff(b"", path):
+        return _Plan(path, "whole")  # a ROS 2 bag's folder: its chosen topics, read whole
     with path.open("rb") as f:
         head = f.read(1024)
+    if sniff(head):
+        return _Plan(path, "whole")  # a log of many streams: only the chosen ones are read
     if head[:4] == _PARQUET:
         import polars as pl
 

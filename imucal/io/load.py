@@ -29,6 +29,7 @@ from imucal.io.load_mat5_pool import usable_threads
 from imucal.io.mat_layout import from_variables
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.readers import display_name, read_file
+from imucal.io.select import Choice, choose, describe, keep_for, parts_of
 from imucal.io.spill import Spill, SpillPolicy, contiguous, elementwise
 from imucal.io.table_layout import from_names, from_positions
 from imucal.io.time_base import MAX_RATE_HZ, own_rows, settle_time
@@ -44,6 +45,7 @@ from imucal.io.units import (
 )
 from imucal.session import Session
 from imucal.stages.sanity import one_rate_pairing
+from imucal.streams import KIND_LABELS, KINDS, StreamSet
 
 __all__ = ["load_session"]
 
@@ -64,6 +66,7 @@ def load_session(
     acc_only: bool = False,
     spill: SpillPolicy | None = None,
     threads: int | None = None,
+    select: Mapping[str, str | None] | None = None,
 ) -> Session:
     """Load an accelerometer + gyroscope recording from ``path`` (and ``gyro_path``).
 
@@ -78,7 +81,10 @@ def load_session(
     temporary file rather than held in memory (:mod:`imucal.io.spill`; default: 64 MB and up,
     in the system's temporary folder). ``threads`` caps the threads that inflate a .mat file's
     variables (default: the cores the process may use; a batch worker passes 1, so that
-    workers, not threads, use the cores). Raises :class:`ImucalError` for any bad input.
+    workers, not threads, use the cores). ``select`` names the streams to take from a log of
+    many (a ROS bag, a ULog, a DataFlash log): {"acc": "/imu/data_raw", "gyro": ...}; without
+    one the first IMU is taken and the choice said (:mod:`imucal.io.select`). Raises
+    :class:`ImucalError` for any bad input.
     """
     paths = [Path(path)] + ([Path(gyro_path)] if gyro_path is not None else [])
     source = " + ".join(display_name(p) for p in paths)
@@ -89,19 +95,34 @@ def load_session(
     )
     acc_unit = check_unit_arg(acc_unit, ACC_UNIT_KEYS, "acc_unit", source)
     gyro_unit = check_unit_arg(gyro_unit, GYRO_UNIT_KEYS, "gyro_unit", source)
+    select = _check_select(select, source)
+    log = log_format(paths[0]) if len(paths) == 1 else None
+    if log is None and select.get("gyro") is not None and gyro_path is None:
+        # --gyro beside a table names the gyroscope's file (one that is not there: said below)
+        paths.append(Path(select.pop("gyro")))
+        source = " + ".join(display_name(p) for p in paths)
+    if log is None and select.get("acc") is not None:
+        raise ImucalError(f"--acc {select['acc']} names a stream of a log (a ROS bag, a ULog, "
+                          "a DataFlash log); this file is a table: map its columns with "
+                          "--columns", source=source, field="--acc")
     for p in paths:
-        _check_file(p)
+        _check_file(p, log is not None)
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
     threads = usable_threads() if threads is None else max(1, int(threads))
     sha256 = _sha256_soon(paths, threads)
-    parts = _read_parts(paths, acc_only, opts, source, store, threads)
+    chosen = None
+    if log is not None:
+        chosen = _choose_streams(paths[0], log, source, select, acc_only, opts)
+        parts = parts_of(chosen)
+    else:
+        parts = _read_parts(paths, acc_only, opts, source, store, threads)
 
     acc, t_acc = settle_time(parts["acc"], opts, store.empty)
     gyro = t_gyro = None
     if "gyro" in parts:
         gyro, t_gyro = settle_time(parts["gyro"], opts, store.empty)
-    if gyro_path is not None and t_gyro is not None and opts.rate is not None:
+    if len(paths) == 2 and t_gyro is not None and opts.rate is not None:
         # Two files timed by one rate: their lengths must agree (stages/sanity.py).
         note = one_rate_pairing(t_acc, t_gyro, opts.rate, *(display_name(p) for p in paths))
         opts.notes.extend([note] if note else [])
@@ -121,7 +142,65 @@ def load_session(
         notes=tuple(dict.fromkeys(opts.notes)),  # a shared time column speaks once
         init_still_s=opts.init_still_s,
         storage=store.note(),
+        chosen=() if chosen is None else tuple(
+            describe(x) for x in (chosen.acc, chosen.gyro) if x is not None),
+        others=() if chosen is None else chosen.others,
     )
+
+
+def log_format(path: Path) -> str | None:
+    """The format key of a log of many streams (:mod:`imucal.io.formats`), or None."""
+    from imucal.io.formats import sniff
+
+    try:
+        if path.is_dir():
+            return sniff(b"", path)
+        with path.open("rb") as fh:
+            return sniff(fh.read(64))
+    except OSError:
+        return None  # _check_file says what is wrong with it
+
+
+def read_log(path: Path, key: str, source: str, keep=None) -> StreamSet:
+    """Every stream of a log (or those ``keep`` accepts); library failures in one line."""
+    from imucal.io.formats import read_streams
+    from imucal.io.readers import one_line_error
+
+    try:
+        return read_streams(path, key, source, keep)
+    except ImucalError:
+        raise
+    except MemoryError:
+        raise ImucalError("not enough memory to load the file", source=source) from None
+    except Exception as exc:  # a parser's failure is a problem with the file, in one line
+        raise ImucalError(f"cannot read the file: {one_line_error(exc)}", source=source) from None
+
+
+def _choose_streams(path: Path, key: str, source: str, select: dict[str, str | None],
+                    acc_only: bool, opts: LoadOptions) -> Choice:
+    streams = read_log(path, key, source, keep_for(select))
+    chosen = choose(streams, select, acc_only)
+    opts.notes.extend(streams.notes)
+    opts.notes.extend(chosen.said)
+    for s in (chosen.acc, chosen.gyro):
+        if s is not None:
+            opts.notes.extend(s.notes)
+            opts.notes.append(f"{KIND_LABELS[s.kind]}: {describe(s)}")
+    return chosen
+
+
+def _check_select(select: Mapping[str, str | None] | None, source: str
+                  ) -> dict[str, str | None]:
+    select = dict(select or {})
+    unknown = [k for k in select if k not in KINDS]
+    if unknown:
+        raise ImucalError(f"unknown stream kind(s) {', '.join(map(repr, unknown))}; expected "
+                          f"{', '.join(KINDS)}", source=source, field="select")
+    for kind, sel in select.items():
+        if sel is not None and (not isinstance(sel, str) or not sel.strip()):
+            raise ImucalError(f"a {kind} selector must be a stream's name, got {sel!r}",
+                              source=source, field=f"--{kind}")
+    return {k: None if v is None else v.strip() for k, v in select.items()}
 
 
 
@@ -205,7 +284,9 @@ def _check_columns(columns: Mapping[str, str | int] | None, source: str) -> dict
     return dict(columns)
 
 
-def _check_file(path: Path) -> None:
+def _check_file(path: Path, log: bool = False) -> None:
+    """A file that exists and can be read; a log of many streams (``log``) may be a ROS 2 bag's
+    folder, and may be larger than a table, as only its chosen streams are read."""
     name = display_name(path)
     try:
         st = path.stat()
@@ -214,6 +295,8 @@ def _check_file(path: Path) -> None:
         raise ImucalError(f"file not found{where}", source=name) from None
     except OSError as exc:
         raise ImucalError(f"cannot access the file ({exc.strerror})", source=name) from None
+    if log:
+        return
     if path.is_dir():
         raise ImucalError("is a directory; expected a data file", source=name)
     if st.st_size == 0:
@@ -236,7 +319,10 @@ def _sha256_soon(paths: list[Path], threads: int) -> Callable[[], str]:
 
 def _sha256(paths: list[Path]) -> str:
     digest = hashlib.sha256()
-    for p in paths:
+    # A ROS 2 bag is a folder: its files in name order.
+    files = [f for p in paths for f in (sorted(x for x in p.rglob("*") if x.is_file())
+                                        if p.is_dir() else [p])]
+    for p in files:
         with p.open("rb") as fh:
             while chunk := fh.read(_CHUNK):
                 digest.update(chunk)

@@ -75,6 +75,11 @@ def _parser_errors() -> tuple[type[BaseException], ...]:
     return (Exception,) if exceptions is None else (Exception, exceptions.PanicException)
 
 
+def one_line_error(exc: BaseException) -> str:
+    """A library's exception as a few words for a one-line message."""
+    return _one_line(exc)
+
+
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     first = text[0] if text else ""
