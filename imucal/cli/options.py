@@ -31,7 +31,8 @@ def _thesis_init() -> tuple[float, float]:
 DEFAULTS: dict[str, Any] = _settings_defaults()
 THESIS_INIT = _thesis_init()  # the initial still interval when --init is not given
 SETTINGS = tuple(DEFAULTS)  # every setting's name: its flag, and its key in calib.json
-ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz")
+ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz", "a2x", "a2y", "a2z", "a3x", "a3y", "a3z",
+         "g2x", "g2y", "g2z", "g3x", "g3y", "g3z", "mx", "my", "mz", "temp")  # io.column_names
 
 
 # --- option values ---------------------------------------------------------------------------

@@ -21,6 +21,22 @@ from imucal.io.units import (
 ROLES = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 AXES = {"acc": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
 LABELS = {"acc": "accelerometer", "gyro": "gyroscope"}
+# The streams a table may hold beside the calibrated pair, by the same naming rule: a second
+# and third accelerometer (a2x…, a3x…) and gyroscope (g2x…, g3x…), a magnetometer (mx, my, mz)
+# and a temperature in deg C (temp). (kind, instance) -> its columns' roles.
+EXTRA_AXES = {("acc", "a2"): ("a2x", "a2y", "a2z"), ("acc", "a3"): ("a3x", "a3y", "a3z"),
+              ("gyro", "g2"): ("g2x", "g2y", "g2z"), ("gyro", "g3"): ("g3x", "g3y", "g3z"),
+              ("mag", "m"): ("mx", "my", "mz"), ("temp", "temp"): ("temp",)}
+EXTRA_ROLES = tuple(r for roles in EXTRA_AXES.values() for r in roles)
+LABELS.update({"a2": "second accelerometer", "a3": "third accelerometer",
+               "g2": "second gyroscope", "g3": "third gyroscope", "m": "magnetometer",
+               "temp": "temperature"})
+# Units a magnetometer's or a thermometer's column name may carry.
+EXTRA_NAME_UNITS = {"mag": {"ut": "uT", "microtesla": "uT", "gauss": "gauss", "ga": "gauss",
+                            "mg": "mG", "mgauss": "mG", "milligauss": "mG", "t": "T",
+                            "tesla": "T", "counts": "counts", "raw": "counts", "lsb": "counts"},
+                    "temp": {"c": "degC", "degc": "degC", "celsius": "degC"}}
+ALL_ROLES = ROLES + EXTRA_ROLES
 
 # Prefixes of an axis letter, as real loggers write them: "acc_x", "Acc_X" (Xsens MT Manager),
 # "AcX"/"GyX" (Arduino MPU-6050 sketches), "Acceleration x" / "Gyroscope x" (Phyphox, x-io),
@@ -44,6 +60,9 @@ _SAMPLE_TIME_NAMES = {"stamp": None, "headerstamp": None, "secondselapsed": "s",
                       "elapsedseconds": "s", "timeelapsed": None, "timesincestart": None,
                       "sampletime": None, "sampletimefine": "100us",  # Xsens: 10 kHz ticks
                       "millis": "ms", "micros": "us"}  # Arduino's millis() and micros()
+_MAG_PREFIXES = ("m", "mag", "magn", "magnetometer", "magneticfield", "compass")
+_TEMP_NAMES = ("temp", "temperature", "tempc", "temperaturec", "tempdegc", "temperaturedegc",
+               "imutemp", "imutemperature")
 # Sample counters look like time (increasing numbers) but are not: never use them as time.
 _COUNTER_NAMES = ("n", "nsample", "nsamples", "sample", "samples", "samplenumber", "samplenr",
                   "sampleindex", "sampleidx", "samplecounter", "sampleid", "index", "idx",
@@ -75,6 +94,15 @@ def _build_name_table() -> dict[str, _Entry]:
                 table.setdefault(prefix + axis, entry[axis])
                 if len(prefix) > 1:  # "x_acc" yes, "xa" no
                     table.setdefault(axis + prefix, entry[axis])
+    for n in "23":  # "a2x", "acc2_x", "accel2x"; "g2x", "gyro2_x"
+        for sensor, prefixes in (("a", ("a", "acc", "accel")), ("g", ("g", "gyr", "gyro"))):
+            for prefix in prefixes:
+                for axis in "xyz":
+                    table.setdefault(f"{prefix}{n}{axis}", _Entry(f"{sensor}{n}{axis}"))
+    for prefix in _MAG_PREFIXES:
+        for axis in "xyz":
+            table.setdefault(prefix + axis, _Entry("m" + axis))
+    table.update({name: _Entry("temp") for name in _TEMP_NAMES})
     table.update({name: _Entry("t", 1) for name in _TIME_NAMES})
     table.update({name: _Entry("t", 0, unit) for name, unit in _SAMPLE_TIME_NAMES.items()})
     table.update({name: _Entry("counter") for name in _COUNTER_NAMES})
@@ -144,4 +172,8 @@ def _unit_for_role(role: str, unit: str | None) -> str | None:
         return GYRO_NAME_UNITS.get(unit)
     if role == "t":
         return TIME_UNIT_KEYS.get(unit)
+    if role in ("mx", "my", "mz"):
+        return EXTRA_NAME_UNITS["mag"].get(unit)
+    if role == "temp":
+        return EXTRA_NAME_UNITS["temp"].get(unit)
     return None

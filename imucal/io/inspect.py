@@ -67,7 +67,8 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
     """The streams of ``path``. ``load_kw`` are :func:`~imucal.io.load.load_session`'s options,
     used for a table (its rate, columns, units). Never raises for a bad file: the error is in
     the result, so that a list of files is listed to its end."""
-    from imucal.io.load import load_session, log_format, read_log
+    from imucal.io.load import load_session
+    from imucal.io.logs import log_format, read_log
 
     p = Path(path)
     name = display_name(p)
@@ -87,8 +88,9 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
                              tuple(_line(s, id(s) in picked) for s in streams.streams),
                              streams.notes + said)
         sess = load_session(p, **load_kw)
-        return FileLines(name, "table", tuple(_line(s, True) for s in _session_streams(sess)),
-                         sess.notes)
+        pair = _session_streams(sess)
+        return FileLines(name, "table", tuple(_line(s, True) for s in pair)
+                         + tuple(_line(s, False) for s in sess.others), sess.notes)
     except ImucalError as e:
         return FileLines(name, "", (), (), error=str(e))
 
@@ -100,7 +102,7 @@ def _session_streams(sess) -> list[Stream]:
     if sess.has_gyro:
         out.append(Stream("gyro", "gyroscope", np.asarray(sess.t_gyro), np.asarray(sess.gyro),
                           sess.gyro_unit, sess.source, time_source="time column or rate"))
-    return out + list(sess.others)
+    return out
 
 
 def as_text(lines: FileLines) -> list[str]:

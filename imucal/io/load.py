@@ -22,14 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.io.column_names import LABELS, ROLES
+from imucal.io.column_names import ALL_ROLES, LABELS
 from imucal.io.file_contents import Table, Variables
 from imucal.io.file_facts import FileFacts, read_facts
 from imucal.io.load_mat5_pool import usable_threads
+from imucal.io.logs import check_select, choose_streams, log_format
 from imucal.io.mat_layout import from_variables
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.readers import display_name, read_file
-from imucal.io.select import Choice, choose, describe, keep_for, parts_of
+from imucal.io.select import describe, parts_of
 from imucal.io.spill import Spill, SpillPolicy, contiguous, elementwise
 from imucal.io.table_layout import from_names, from_positions
 from imucal.io.time_base import MAX_RATE_HZ, own_rows, settle_time
@@ -45,7 +46,7 @@ from imucal.io.units import (
 )
 from imucal.session import Session
 from imucal.stages.sanity import one_rate_pairing
-from imucal.streams import KIND_LABELS, KINDS, StreamSet
+from imucal.streams import UNITS, Stream
 
 __all__ = ["load_session"]
 
@@ -95,7 +96,7 @@ def load_session(
     )
     acc_unit = check_unit_arg(acc_unit, ACC_UNIT_KEYS, "acc_unit", source)
     gyro_unit = check_unit_arg(gyro_unit, GYRO_UNIT_KEYS, "gyro_unit", source)
-    select = _check_select(select, source)
+    select = check_select(select, source)
     log = log_format(paths[0]) if len(paths) == 1 else None
     if log is None and select.get("gyro") is not None and gyro_path is None:
         # --gyro beside a table names the gyroscope's file (one that is not there: said below)
@@ -113,7 +114,7 @@ def load_session(
     sha256 = _sha256_soon(paths, threads)
     chosen = None
     if log is not None:
-        chosen = _choose_streams(paths[0], log, source, select, acc_only, opts)
+        chosen = choose_streams(paths[0], log, source, select, acc_only, opts)
         parts = parts_of(chosen)
     else:
         parts = _read_parts(paths, acc_only, opts, source, store, threads)
@@ -129,6 +130,7 @@ def load_session(
 
     acc, acc_unit, gyro, final_gyro_unit = _units(acc, gyro, parts, acc_unit, gyro_unit, opts,
                                                   store)
+    extras = tuple(_extra_streams(opts))
 
     return Session(
         acc=contiguous(acc, store),
@@ -144,64 +146,38 @@ def load_session(
         storage=store.note(),
         chosen=() if chosen is None else tuple(
             describe(x) for x in (chosen.acc, chosen.gyro) if x is not None),
-        others=() if chosen is None else chosen.others,
+        others=extras if chosen is None else chosen.others,
     )
 
 
-def log_format(path: Path) -> str | None:
-    """The format key of a log of many streams (:mod:`imucal.io.formats`), or None."""
-    from imucal.io.formats import sniff
-
-    try:
-        if path.is_dir():
-            return sniff(b"", path)
-        with path.open("rb") as fh:
-            return sniff(fh.read(64))
-    except OSError:
-        return None  # _check_file says what is wrong with it
-
-
-def read_log(path: Path, key: str, source: str, keep=None) -> StreamSet:
-    """Every stream of a log (or those ``keep`` accepts); library failures in one line."""
-    from imucal.io.formats import read_streams
-    from imucal.io.readers import one_line_error
-
-    try:
-        return read_streams(path, key, source, keep)
-    except ImucalError:
-        raise
-    except MemoryError:
-        raise ImucalError("not enough memory to load the file", source=source) from None
-    except Exception as exc:  # a parser's failure is a problem with the file, in one line
-        raise ImucalError(f"cannot read the file: {one_line_error(exc)}", source=source) from None
-
-
-def _choose_streams(path: Path, key: str, source: str, select: dict[str, str | None],
-                    acc_only: bool, opts: LoadOptions) -> Choice:
-    streams = read_log(path, key, source, keep_for(select))
-    chosen = choose(streams, select, acc_only)
-    opts.notes.extend(streams.notes)
-    opts.notes.extend(chosen.said)
-    for s in (chosen.acc, chosen.gyro):
-        if s is not None:
-            opts.notes.extend(s.notes)
-            opts.notes.append(f"{KIND_LABELS[s.kind]}: {describe(s)}")
-    return chosen
-
-
-def _check_select(select: Mapping[str, str | None] | None, source: str
-                  ) -> dict[str, str | None]:
-    select = dict(select or {})
-    unknown = [k for k in select if k not in KINDS]
-    if unknown:
-        raise ImucalError(f"unknown stream kind(s) {', '.join(map(repr, unknown))}; expected "
-                          f"{', '.join(KINDS)}", source=source, field="select")
-    for kind, sel in select.items():
-        if sel is not None and (not isinstance(sel, str) or not sel.strip()):
-            raise ImucalError(f"a {kind} selector must be a stream's name, got {sel!r}",
-                              source=source, field=f"--{kind}")
-    return {k: None if v is None else v.strip() for k, v in select.items()}
-
+def _extra_streams(opts: LoadOptions) -> list[Stream]:
+    """The table's other streams (a2x…, g2x…, mx…, temp) on their own timestamps: the rows
+    where they hold values (a slower magnetometer leaves the rest empty), timed as the pair is.
+    One that cannot be timed is said and left out: it never stops the calibration."""
+    out = []
+    for kind, part in opts.extras:
+        label = LABELS[part.sensor]
+        finite = np.isfinite(part.values).all(axis=1)
+        if part.time is not None:
+            finite &= np.isfinite(part.time)
+            part.time = part.time[finite]
+        part.values = part.values[finite]
+        scratch = LoadOptions(rate=opts.rate, time_unit=opts.time_unit, columns=None)
+        try:
+            values, t = settle_time(part, scratch)
+        except ImucalError as e:
+            opts.notes.append(f"{label} columns left out: {e.problem}")
+            continue
+        # a column named temp holds deg C (the naming rule says so)
+        unit = "degC" if kind == "temp" else part.unit_hint
+        unit = unit if unit in UNITS[kind] else None
+        roles = "temp" if kind == "temp" else f"{part.sensor}x, {part.sensor}y, {part.sensor}z"
+        out.append(Stream(kind, part.sensor, np.ascontiguousarray(t, dtype=float),
+                          np.ascontiguousarray(values, dtype=float), unit,
+                          f"{part.source}: columns {roles}", time_source="the table's time"))
+        opts.notes.append(f"{label} found beside the pair ({roles}: {len(t)} samples); "
+                          "recorded, not calibrated")
+    return out
 
 
 def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
@@ -265,17 +241,16 @@ def _check_rate(rate: float | None, source: str) -> float | None:
     return value
 
 
-
 def _check_columns(columns: Mapping[str, str | int] | None, source: str) -> dict | None:
     if columns is None:
         return None
     if not isinstance(columns, Mapping):
         raise ImucalError("expected a mapping of role to column name, e.g. {'ax': 'acc_x'}",
                           source=source, field="columns")
-    unknown = [k for k in columns if k not in ROLES]
+    unknown = [k for k in columns if k not in ALL_ROLES]
     if unknown:
         raise ImucalError(f"unknown role(s) {', '.join(map(repr, unknown))}; expected keys from "
-                          f"{', '.join(ROLES)}", source=source, field="columns")
+                          f"{', '.join(ALL_ROLES)}", source=source, field="columns")
     for role, col in columns.items():
         ok = isinstance(col, str) or (isinstance(col, int) and not isinstance(col, bool))
         if not ok or (isinstance(col, int) and col < 0):
@@ -327,7 +302,6 @@ def _sha256(paths: list[Path]) -> str:
             while chunk := fh.read(_CHUNK):
                 digest.update(chunk)
     return digest.hexdigest()
-
 
 
 def _share_equal_time(acc: Part, gyro: Part, rows: int = 1 << 16) -> None:

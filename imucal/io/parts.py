@@ -35,6 +35,9 @@ class LoadOptions:
     columns: dict[str, str | int] | None
     notes: list[str] = field(default_factory=list)
     init_still_s: float | None = None  # the initial still period a file states
+    # Streams a table holds beside the calibrated pair (a2x…, g2x…, mx…, temp): (kind, part),
+    # the part's ``sensor`` naming the instance ("a2", "m", "temp").
+    extras: list[tuple[str, Part]] = field(default_factory=list)
 
 
 def columns_for(opts: LoadOptions, sensors: tuple[str, ...], source: str

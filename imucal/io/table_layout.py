@@ -7,7 +7,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.column_guess import guess_hint, paste_name
-from imucal.io.column_names import AXES, LABELS, classify_name
+from imucal.io.column_names import AXES, EXTRA_AXES, EXTRA_ROLES, LABELS, classify_name
 from imucal.io.file_contents import Table
 from imucal.io.parts import LoadOptions, Part, columns_for
 
@@ -85,6 +85,8 @@ def from_names(table: Table, sensors: tuple[str, ...], opts: LoadOptions) -> dic
         units[role] = meaning.unit if meaning.role == role else None
     mapping.update(explicit)
     used = set(mapping.values())
+    if len(sensors) == 2:
+        used |= _extra_parts(table, mapping, used, opts)
     ignored = [n for i, n in enumerate(table.names) if i not in used and n]
     parts = _parts_from_mapping(table, mapping, sensors, opts, counter)
     if ignored and parts:
@@ -92,6 +94,9 @@ def from_names(table: Table, sensors: tuple[str, ...], opts: LoadOptions) -> dic
     for sensor, part in parts.items():
         hints = {units.get(role) for role in AXES[sensor]}
         part.unit_hint = hints.pop() if len(hints) == 1 else None
+        if "t" in mapping and units.get("t"):
+            part.time_unit = units["t"]
+    for _, part in opts.extras:
         if "t" in mapping and units.get("t"):
             part.time_unit = units["t"]
     return parts
@@ -156,3 +161,36 @@ def _parts_from_mapping(table: Table, mapping: dict[str, int], sensors: tuple[st
                                   field="time")
         parts[sensor] = part
     return parts
+
+
+def _extra_parts(table: Table, mapping: dict[str, int], used: set[int],
+                 opts: LoadOptions) -> set[int]:
+    """The streams a table holds beside the pair, found by the same naming rule (a2x…, g2x…,
+    mx…, temp, or --columns): each complete one becomes a part in ``opts.extras``; the columns
+    taken are returned. An incomplete triad stays among the ignored columns."""
+    assert table.names is not None
+    explicit = _explicit_columns(table, {r: c for r, c in (opts.columns or {}).items()
+                                         if r in EXTRA_ROLES})
+    found: dict[str, tuple[int, str | None]] = {}
+    for i, name in enumerate(table.names):
+        if i in used or i in explicit.values():
+            continue
+        meaning = classify_name(name, None)
+        if meaning.role in EXTRA_ROLES and meaning.role not in found:
+            found[meaning.role] = (i, meaning.unit)
+    found.update({r: (i, None) for r, i in explicit.items()})
+    taken: set[int] = set()
+    for (kind, instance), roles in EXTRA_AXES.items():
+        if not all(r in found for r in roles):
+            continue
+        cols = [found[r][0] for r in roles]
+        units = {found[r][1] for r in roles}
+        part = Part(instance, table.source, np.column_stack([table.column(c) for c in cols]),
+                    unit_hint=units.pop() if len(units) == 1 else None)
+        if "t" in mapping:
+            ti = mapping["t"]
+            part.time, part.time_label = table.column(ti), table.label(ti)
+            part.time_is_datetime = ti in table.seconds_cols
+        opts.extras.append((kind, part))
+        taken.update(cols)
+    return taken
