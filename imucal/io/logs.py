@@ -21,7 +21,7 @@ def log_format(path: Path) -> str | None:
         if path.is_dir():
             return sniff(b"", path)
         with path.open("rb") as fh:
-            return sniff(fh.read(64))
+            return sniff(fh.read(1024), path)
     except OSError:
         return None  # _check_file says what is wrong with it
 
