@@ -82,6 +82,9 @@ class NoiseReport:
     gyroscope: SensorNoise | None
     source: str  # where the samples came from, in words
     notes: tuple[str, ...] = field(default_factory=tuple)
+    # A long recording that should be still: False where it moved (the figures then measure the
+    # motion, and no noise block is given from them); None where not judged (still blocks).
+    still: bool | None = None
 
 
 def sensor_noise(sensor: str, unit: str, rate_hz: float, curve: AllanCurve) -> SensorNoise:
@@ -216,6 +219,7 @@ class StreamingNoise:
     def report(self, source: str) -> NoiseReport:
         out: dict[str, SensorNoise | None] = {"accelerometer": None, "gyroscope": None}
         notes = []
+        still = True
         for sensor, c in self.clock.items():
             t0, t1, n, _step, gaps = c
             if n < 2 or t1 <= t0:
@@ -231,6 +235,7 @@ class StreamingNoise:
                 # instability of MEMS parts: 0.01-1 mg); a turn moves it by tens of percent.
                 moved = float(np.sqrt(curve.avar[-1].max()) / max(np.linalg.norm(centre), 1e-300))
                 if moved > MAX_STILL_DRIFT:
+                    still = False
                     notes.append(f"the recording does not look still: the accelerometer's "
                                  f"Allan deviation at tau = {curve.lags[-1] / rate:.3g} s is "
                                  f"{100 * moved:.2g} % of its mean magnitude; the figures "
@@ -238,4 +243,4 @@ class StreamingNoise:
             if len(curve.lags):
                 out[sensor] = sensor_noise(sensor, self.units[sensor] or "", rate, curve)
         return NoiseReport(accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
-                           source=source, notes=tuple(notes))
+                           source=source, notes=tuple(notes), still=still)
