@@ -10,6 +10,9 @@ The core is pure computation (it never imports rerun). Public API::
 Names are imported on first use (PEP 562), so ``import imucal`` costs nothing until then and
 ``imucal --help`` stays fast. ``imucal.__version__`` is the installed package's version, read
 from its metadata (whose one source is ``pyproject.toml``), so it cannot drift from it.
+
+"method.md §3" and "(M2)" in comments cite the method document, ``docs/method.md`` in the
+repository (every cited section and equation is there: tests/test_method_doc.py).
 """
 
 from __future__ import annotations

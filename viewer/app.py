@@ -210,6 +210,15 @@ def record(target: str | os.PathLike, out: str | os.PathLike,
     return result
 
 
+def _reporting(on_result: Callable[[Result], None]) -> Callable[..., Result]:
+    """:func:`record`, then ``on_result`` of what it calibrated."""
+    def run(*args, **kwargs) -> Result:
+        result = record(*args, **kwargs)
+        on_result(result)
+        return result
+    return run
+
+
 def free_name(directory: Path, stem: str, suffix: str = ".rrd") -> Path:
     """``stem.rrd`` in ``directory``, else the first free ``stem-1.rrd``, ``stem-2.rrd``, ...:
     the name imucal picks itself never replaces a file."""
@@ -326,10 +335,14 @@ def view(target: str, *, save: str | None = None, web: bool = False,
 
 def show(target: str, *, save: str | None = None, web: bool = False,
          port: int | None = None, grpc_port: int | None = None, bind: str = LOOPBACK,
-         verbose: bool = False, load_options: dict | None = None, **calibrate_kwargs) -> int:
+         verbose: bool = False, load_options: dict | None = None,
+         on_result: Callable[[Result], None] | None = None, **calibrate_kwargs) -> int:
     """:func:`view` raising :class:`~imucal.errors.ImucalError` instead of printing it (for the
-    command line, which reports every error the same way)."""
+    command line, which reports every error the same way). ``on_result`` is given a session's
+    result as soon as it is calibrated (the command line prints its result line)."""
     src = Path(target)
+    calibrate = record if on_result is None else _reporting(on_result)
+
     if not src.is_file():
         raise ImucalError("no such file", source=str(target))
     rrd = is_rrd(src)
@@ -338,7 +351,7 @@ def show(target: str, *, save: str | None = None, web: bool = False,
         if rrd:
             _copy_recording(src, save)
         else:
-            record(src, save, load_options, **calibrate_kwargs)
+            calibrate(src, save, load_options, **calibrate_kwargs)
         print(f"wrote {save}")
         return 0
 
@@ -348,7 +361,7 @@ def show(target: str, *, save: str | None = None, web: bool = False,
                               "open it here; try --web, or open it where there is a display",
                               source=str(src))
         out = free_name(Path.cwd(), src.stem)
-        record(src, out, load_options, exclusive=True, **calibrate_kwargs)
+        calibrate(src, out, load_options, exclusive=True, **calibrate_kwargs)
         print(f"no display (neither DISPLAY nor WAYLAND_DISPLAY is set): wrote {out} instead; "
               "open it where there is a display, or use --web")
         return 0
@@ -364,7 +377,7 @@ def show(target: str, *, save: str | None = None, web: bool = False,
         shown = src
         if not rrd:
             shown = Path(tmp) / f"{src.stem}.rrd"
-            record(src, shown, load_options, **calibrate_kwargs)
+            calibrate(src, shown, load_options, **calibrate_kwargs)
         log = None if verbose else Path(tmp) / "viewer.log"
         env = viewer_env(verbose)
         if web_port is None:

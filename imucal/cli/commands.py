@@ -10,6 +10,7 @@ import typer
 
 from imucal.cli.options import (
     ACC_UNITS,
+    APPLY_INPUT_OPTIONS,
     DEFAULTS,
     GYRO_UNITS,
     INPUT_OPTIONS,
@@ -132,7 +133,7 @@ def _sidecar(table: str | None) -> Path | None:
 
 
 @app.command()
-@shared_options(INPUT_OPTIONS)
+@shared_options(APPLY_INPUT_OPTIONS)
 def apply(
     calibration: Annotated[Path, typer.Argument(metavar="CALIB.json", show_default=False,
                                                 help="Calibration file from 'imucal calibrate'.")],
@@ -163,7 +164,9 @@ def apply(
         with progress.stage(f"reading {calibration.name}"):
             cal = imucal.load_calibration(calibration)
         with progress.stage(f"loading {session.name}"):
-            sess = imucal.load_session(session, **load_kw)
+            # One segment applies to every sample alike: time, and so --rate, cannot matter.
+            sess = imucal.load_session(session, number_samples=len(cal.segments) == 1,
+                                       **load_kw)
         with progress.stage("applying"):
             signals = cal.apply(sess)
         with progress.stage(f"writing {out}"):
@@ -171,8 +174,11 @@ def apply(
         tx.commit()
     import numpy as np
 
+    from imucal.io.time_base import NUMBERED_NOTE
+
     norm = signals.acc_norm
-    lines = [f"session         {sess.source}: {sess.duration:.1f} s, accelerometer "
+    span = "no time" if NUMBERED_NOTE in sess.notes else f"{sess.duration:.1f} s"
+    lines = [f"session         {sess.source}: {span}, accelerometer "
              f"{len(sess.acc)} samples ({sess.acc_unit}), "
              + (f"gyroscope {len(sess.gyro)} samples ({sess.gyro_unit})" if sess.has_gyro
                 else "no gyroscope"),
@@ -197,7 +203,8 @@ def synth(
                                         help="Session file to write (MATLAB v5, or CSV).")],
     truth: Annotated[Path | None, typer.Option(
         "--truth", metavar="PATH", show_default=False,
-        help="Where to write the true parameters [default: OUT.truth.json].")] = None,
+        help="Where to write the true parameters [default: OUT's full name and .truth.json, "
+             "e.g. my.csv.truth.json: never the truth of another OUT].")] = None,
     poses: Annotated[int | None, typer.Option(
         "--poses", metavar="N", callback=at_least(2), show_default=False,
         help="Number of still poses [default: 30].")] = None,
@@ -258,7 +265,9 @@ def synth(
         # duration ~ init_still + n * still + (n - 1) * move (the durations vary by +-20 %)
         poses = max(2, round((minutes * 60.0 - init_still + move) / (still + move)))
     poses = 30 if poses is None else poses
-    truth = truth if truth is not None else out.with_suffix(".truth.json")
+    # After the full name: my.mat and my.csv each have their own truth, so a synth never
+    # replaces a file the user did not name (my.truth.json was both's).
+    truth = truth if truth is not None else out.with_name(out.name + ".truth.json")
     check_outputs([out, truth], [])
     progress = Progress(verbose)
     from imucal.io.export import write_session_csv, write_session_mat, write_truth
@@ -333,8 +342,11 @@ def view(
         check_outputs([save], [target, gyro])
     with viewer_available():
         from viewer.app import show
+    from imucal.cli.summary import result_line
+
     rc = show(str(target), save=save, web=web, port=port, grpc_port=grpc_port, bind=bind,
-              verbose=verbose, load_options=load_options or None, **overrides)
+              verbose=verbose, load_options=load_options or None,
+              on_result=lambda result: print(result_line(result), flush=True), **overrides)
     return int(rc or 0)
 
 

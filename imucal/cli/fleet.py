@@ -112,6 +112,9 @@ def batch(
     if workers is not None and scheduler is not None:
         raise usage_error("--workers sizes the LocalCluster; an existing cluster (--scheduler) "
                           "is used as it is", "'--workers'")
+    from imucal.fleet.batch import require_dask, run_batch
+
+    require_dask()
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
     files = _expand(patterns)
@@ -119,7 +122,6 @@ def batch(
         if folder is not None and folder.exists() and not folder.is_dir():
             raise ImucalError("is a file; expected a directory", source=str(folder),
                               field=option)
-    from imucal.fleet.batch import run_batch
     from imucal.fleet.spec import load_spec
 
     limits = load_spec(spec) if spec is not None else None

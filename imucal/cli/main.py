@@ -105,7 +105,7 @@ def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
         warnings.showwarning = functools.partial(_show_warning, prog=prog)
     err = functools.partial(_err, prog=prog)
     try:
-        cli = typer.main.get_command(app)
+        cli = _plain_usage(typer.main.get_command(app))
         if command is not None:
             cli = _as_program(cli, command)
         rv = cli.main(args, prog_name=prog, standalone_mode=False)
@@ -153,6 +153,26 @@ def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
         err(f"internal error: {e.__class__.__name__}: {e} (a bug in imucal; run with "
              "IMUCAL_DEBUG=1 for the traceback)")
         return EXIT_INTERNAL
+
+
+class _PlainArgument(typer.core.TyperArgument):
+    """An argument written in usage lines as its bare metavar: ``imucal calibrate [OPTIONS]
+    SESSION`` (typer 0.28 writes a required argument as ``{SESSION}``, which reads as a literal
+    to type, braces and all)."""
+
+    def get_usage_pieces(self, ctx: typer.Context) -> list[str]:
+        piece = self.make_metavar(ctx, usage=True)  # an optional one keeps its [ ]
+        return [piece[1:-1] if piece.startswith("{") and piece.endswith("}") else piece]
+
+
+def _plain_usage(cli):
+    """Every argument of ``cli`` and of its subcommands as a :class:`_PlainArgument`."""
+    for param in cli.params:
+        if type(param) is typer.core.TyperArgument:
+            param.__class__ = _PlainArgument  # the same fields; only the usage piece differs
+    for sub in getattr(cli, "commands", {}).values():
+        _plain_usage(sub)
+    return cli
 
 
 def _as_program(group: typer.core.TyperGroup, command: str) -> typer.core.TyperCommand:

@@ -315,6 +315,22 @@ INPUT_OPTIONS = (
     ("gyro_unit", GyroUnitOpt, "auto"), ("columns", ColumnsOpt, None),
     ("time_unit", TimeUnitOpt, "s"), ("acc_only", AccOnlyOpt, False),
     ("spill_dir", SpillDirOpt, None))
+
+
+def input_options(acc_only: str) -> tuple:
+    """:data:`INPUT_OPTIONS` with ``--acc-only``'s help saying what this command does with the
+    accelerometer alone (the flag means the same to the loader everywhere)."""
+    opt = Annotated[bool, typer.Option("--acc-only", rich_help_panel=_IN, help=acc_only)]
+    return tuple((name, opt if name == "acc_only" else o, d) for name, o, d in INPUT_OPTIONS)
+
+
+_ACC_ONLY = "The file holds an accelerometer and no gyroscope (or leave its gyroscope out): "
+APPLY_INPUT_OPTIONS = input_options(
+    _ACC_ONLY + "apply the calibration's accelerometer model alone.")
+NOISE_INPUT_OPTIONS = input_options(_ACC_ONLY + "measure the accelerometer's noise alone.")
+INSPECT_INPUT_OPTIONS = input_options(
+    _ACC_ONLY + "list what the other commands take with --acc-only.")
+
 SETTING_OPTIONS = (
     ("window", WindowOpt, DEFAULTS["window"]), ("min_len", MinLenOpt, DEFAULTS["min_len"]),
     ("k", KOpt, DEFAULTS["k"]), ("init", InitOpt, None), ("init_start", InitStartOpt, None),

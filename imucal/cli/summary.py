@@ -45,7 +45,25 @@ def _vec(values, spec: str = ".6g") -> str:
     return " ".join(fmt(v, spec) for v in values)
 
 
+def result_line(result: Result) -> str:
+    """What a run came to, in one line: the errors on still blocks and turns the fits did not
+    see (method.md §5), then the in-sample ones. ``calibrate`` prints it above the files it
+    wrote, ``imucal-view SESSION`` before the viewer opens."""
+    from imucal.errors import plural
+    from imucal.report import fmt
+
+    q = result.quality
+    parts = [f"accelerometer {fmt(q.static_norm_cv_mg, '.3g')} mg held out "
+             f"({fmt(q.static_norm_rms_mg.after, '.3g')} in-sample)"]
+    if q.gravity_angle_rms_deg is not None:
+        parts.append(f"gyroscope {fmt(q.gravity_angle_cv_deg, '.3g')} deg held out "
+                     f"({fmt(q.gravity_angle_rms_deg.after, '.3g')} in-sample)")
+    return (f"{'result':16s}{', '.join(parts)}; {plural(len(result.segments), 'segment')}, "
+            f"{plural(len(result.block_times), 'still block')}")
+
+
 def print_summary(result: Result, written: list[str]) -> None:
     from imucal.report import report
 
-    print("\n".join(summary_lines(report(result)) + [f"wrote {w}" for w in written]))
+    print("\n".join(summary_lines(report(result)) + [result_line(result)]
+                    + [f"wrote {w}" for w in written]))

@@ -12,6 +12,8 @@ import typer
 from imucal.cli.commands import app
 from imucal.cli.options import (
     INPUT_OPTIONS,
+    INSPECT_INPUT_OPTIONS,
+    NOISE_INPUT_OPTIONS,
     VerboseOpt,
     at_least,
     load_kwargs,
@@ -19,6 +21,7 @@ from imucal.cli.options import (
     shared_options,
 )
 from imucal.cli.outputs import Progress, check_outputs, fmt, viewer_available
+from imucal.errors import ImucalError
 
 FORMAT_NAMES = ("imu_tk", "fusion", "kalibr", "px4", "ardupilot", "c", "json", "yaml")
 
@@ -65,7 +68,7 @@ def export_cmd(
 
 
 @app.command("noise")
-@shared_options(INPUT_OPTIONS)
+@shared_options(NOISE_INPUT_OPTIONS)
 def noise_cmd(
     recording: Annotated[Path, typer.Argument(
         metavar="FILE", show_default=False,
@@ -99,19 +102,36 @@ def noise_cmd(
         with viewer_available():
             from viewer.noise import save_noise_recording as save
     progress = Progress(verbose)
-    import imucal
     from imucal.io.noise_file import measure_noise
     from imucal.io.noise_json import kalibr_block, noise_to_dict
 
     cal = None
+    unit_notes = []
     if calibration is not None:
+        from imucal.io.calibration_file import recorded_units
+
         with progress.stage(f"reading {calibration.name}"):
-            cal = imucal.load_calibration(calibration)
+            cal, units = recorded_units(calibration)
+        # The calibration states the units its recording was in: a unit not given is that one
+        # (a still gyroscope cannot tell rad/s from deg/s by itself).
+        for key, unit in units.items():
+            if load_kw[key] == "auto":
+                load_kw[key] = unit
+                sensor = {"acc_unit": "accelerometer", "gyro_unit": "gyroscope"}[key]
+                unit_notes.append(f"{sensor} read in {unit}, as {calibration.name} states")
     with progress.stage(f"reading {recording.name} a chunk at a time"):
         report = measure_noise(recording, calibration=cal, chunk_bytes=chunk_mb << 20,
                                **load_kw)
     data = noise_to_dict(report)
+    data["notes"] = unit_notes + data["notes"]
     block, knotes = kalibr_block(data)
+    if report.still is False:
+        # Figures of a recording that moved measure the motion: no noise block from them.
+        if kalibr is not None:
+            raise ImucalError("the recording is not still (see 'imucal noise' without "
+                              "--kalibr): no Kalibr noise block from it; nothing written",
+                              source=str(recording), field="--kalibr")
+        block, knotes = None, []
     written = _write_outputs(data, block, out, kalibr)
     if rrd is not None and save is not None:
         with progress.stage(f"writing {rrd}"):
@@ -120,7 +140,8 @@ def noise_cmd(
     print(_noise_summary(data, block, knotes, written))
 
 
-def _write_outputs(data: dict, block: dict, out: Path | None, kalibr: Path | None) -> list[str]:
+def _write_outputs(data: dict, block: dict | None, out: Path | None, kalibr: Path | None
+                   ) -> list[str]:
     import json
 
     from imucal.io.atomic import write_text_atomic
@@ -128,9 +149,11 @@ def _write_outputs(data: dict, block: dict, out: Path | None, kalibr: Path | Non
     written = []
     if out is not None:
         doc = {"format": "imucal-noise", "format_version": 1, "noise": data, "kalibr": block}
+        if block is None:
+            doc["still"] = False  # export --noise refuses it (exports/common.py)
         write_text_atomic(out, json.dumps(doc, indent=2, allow_nan=False) + "\n")
         written.append(str(out))
-    if kalibr is not None:
+    if kalibr is not None and block is not None:
         from imucal.io.exports.kalibr import ROSTOPIC
         from imucal.io.exports.yaml_text import comment_block, dump
         from imucal.io.noise_json import KALIBR_UNITS
@@ -157,7 +180,8 @@ def _value(sn: dict, key: str, i: int) -> str:
     return f"{v:.4g} {sn[key + '_unit']}" + (f" (±{100 * err:.2g} %)" if err else "")
 
 
-def _noise_summary(data: dict, block: dict, knotes: list[str], written: list[str]) -> str:
+def _noise_summary(data: dict, block: dict | None, knotes: list[str], written: list[str]
+                   ) -> str:
     lines = [f"source          {data['source']}"]
     for key in ("accelerometer", "gyroscope"):
         sn = data.get(key)
@@ -170,8 +194,12 @@ def _noise_summary(data: dict, block: dict, knotes: list[str], written: list[str
             lines.append(f"  {axis}  white {_value(sn, 'white_noise_density', i)}   bias "
                          f"instability {_value(sn, 'bias_instability', i)}   random walk "
                          f"{_value(sn, 'random_walk', i)}")
-    lines.append("kalibr imu.yaml")
-    lines += [f"  {k}: {fmt(v, '.6g')}" for k, v in block.items()]
+    if block is None:
+        lines.append("kalibr imu.yaml  none: the recording is not still, its figures measure "
+                     "the motion (see the notes)")
+    else:
+        lines.append("kalibr imu.yaml")
+        lines += [f"  {k}: {fmt(v, '.6g')}" for k, v in block.items()]
     notes = list(data.get("notes", [])) + knotes
     if notes:
         lines.append("notes:")
@@ -181,7 +209,7 @@ def _noise_summary(data: dict, block: dict, knotes: list[str], written: list[str
 
 
 @app.command("inspect")
-@shared_options(INPUT_OPTIONS)
+@shared_options(INSPECT_INPUT_OPTIONS)
 def inspect_cmd(
     files: Annotated[list[Path], typer.Argument(
         metavar="FILE...", show_default=False,

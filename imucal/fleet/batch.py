@@ -277,6 +277,19 @@ def _reusable(job: Job, prev: dict[str, Any] | None) -> bool:
 # --- the driver ----------------------------------------------------------------------------------
 
 
+FLEET_EXTRA = "pip install 'imucal-rerun[fleet]'"
+
+
+def require_dask() -> None:
+    """Dask is an extra (``[fleet]``: only this module imports it): without it, one line that
+    says how to install it, before any file is read."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise ImucalError(f"not installed; imucal batch runs on a Dask cluster: {FLEET_EXTRA}",
+                          source="dask") from None
+
+
 @contextlib.contextmanager
 def cluster_client(scheduler: str | None, workers: int) -> Iterator[tuple[Any, str]]:
     """A client of the given scheduler (used as it is), or of a LocalCluster on loopback."""

@@ -193,9 +193,31 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
     invertible, K finite and non-zero, b finite (M2, M4); g finite and > 0; the units known;
     the segments in time order; the format version an integer this imucal reads.
     """
+    return calibration_from_dict(_read_json(path), source=str(path))
+
+
+def recorded_units(path: str | os.PathLike) -> tuple[Calibration, dict[str, str]]:
+    """The calibration at ``path`` and the units of the recording it was fitted on, as
+    :func:`~imucal.io.load.load_session`'s ``acc_unit`` and ``gyro_unit``: what a recording of
+    the same sensor is read in when no unit is given (``imucal noise --calibration``, where a
+    still gyroscope cannot tell rad/s from deg/s). The file's ``units`` give them, except that a
+    gyroscope read in deg/s was converted to rad/s on load: the loader's note, which the file
+    keeps among its warnings, says so."""
+    from imucal.io.load import DEG_S_NOTE
+
+    data = _read_json(path)
+    cal = calibration_from_dict(data, source=str(path))
+    units = {"acc_unit": cal.acc_unit_raw}
+    if cal.gyro_unit_raw is not None:
+        notes = [w.get("message") for w in data.get("warnings") or () if isinstance(w, dict)]
+        units["gyro_unit"] = "deg/s" if DEG_S_NOTE in notes else cal.gyro_unit_raw
+    return cal, units
+
+
+def _read_json(path: str | os.PathLike) -> Any:
     name = str(path)
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        return json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ImucalError("file not found", source=name) from None
     except RecursionError:
@@ -207,7 +229,6 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ImucalError(f"not a readable JSON calibration file ({e.__class__.__name__})",
                           source=name) from None
-    return calibration_from_dict(data, source=name)
 
 
 def calibration_to_dict(cal: Calibration) -> dict:

@@ -51,6 +51,9 @@ from imucal.streams import UNITS, Stream
 __all__ = ["load_session"]
 
 MAX_FILE_BYTES = 2 * 1024**3
+# Said whenever a gyroscope read in deg/s is converted: a calibration file keeps it (among its
+# warnings), and so knows its recording's unit (calibration_file.recorded_units).
+DEG_S_NOTE = "gyroscope converted from deg/s to rad/s"
 
 _CHUNK = 1 << 20
 
@@ -68,6 +71,7 @@ def load_session(
     spill: SpillPolicy | None = None,
     threads: int | None = None,
     select: Mapping[str, str | None] | None = None,
+    number_samples: bool = False,
 ) -> Session:
     """Load an accelerometer + gyroscope recording from ``path`` (and ``gyro_path``).
 
@@ -84,8 +88,10 @@ def load_session(
     variables (default: the cores the process may use; a batch worker passes 1, so that
     workers, not threads, use the cores). ``select`` names the streams to take from a log of
     many (a ROS bag, a ULog, a DataFlash log): {"acc": "/imu/data_raw", "gyro": ...}; without
-    one the first IMU is taken and the choice said (:mod:`imucal.io.select`). Raises
-    :class:`ImucalError` for any bad input.
+    one the first IMU is taken and the choice said (:mod:`imucal.io.select`).
+    ``number_samples``: a file with no time column and no rate is numbered (t = 0, 1, 2, ...,
+    said in the notes) instead of refused, for a use that time cannot change (applying a
+    calibration of one segment). Raises :class:`ImucalError` for any bad input.
     """
     paths = [Path(path)] + ([Path(gyro_path)] if gyro_path is not None else [])
     source = " + ".join(display_name(p) for p in paths)
@@ -93,6 +99,7 @@ def load_session(
         rate=_check_rate(rate, source),
         time_unit=check_choice(time_unit, TIME_UNIT_KEYS, "time_unit", source),
         columns=_check_columns(columns, source),
+        number_samples=bool(number_samples),
     )
     acc_unit = check_unit_arg(acc_unit, ACC_UNIT_KEYS, "acc_unit", source)
     gyro_unit = check_unit_arg(gyro_unit, GYRO_UNIT_KEYS, "gyro_unit", source)
@@ -217,7 +224,7 @@ def _units(acc: np.ndarray, gyro: np.ndarray | None, parts: dict, acc_unit: str,
                                   opts.notes)
     if gyro_unit == "deg/s":
         gyro = elementwise(np.deg2rad, gyro, store.empty)
-        opts.notes.append("gyroscope converted from deg/s to rad/s")
+        opts.notes.append(DEG_S_NOTE)
         gyro_unit = "rad/s"
     return acc, acc_unit, gyro, gyro_unit
 

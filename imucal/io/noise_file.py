@@ -61,7 +61,8 @@ def measure_noise(path: str | os.PathLike, *, calibration: Calibration | None = 
               f"chunk{'s' if chunks != 1 else ''}; overlapping Allan deviation at octave taus")
     report = stream.report(source)
     return NoiseReport(accelerometer=report.accelerometer, gyroscope=report.gyroscope,
-                       source=report.source, notes=tuple(notes) + report.notes)
+                       source=report.source, notes=tuple(notes) + report.notes,
+                       still=report.still)
 
 
 def _check_gyro_unit(notes: tuple[str, ...], given: str, source: str, has_gyro: bool) -> None:

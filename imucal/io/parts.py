@@ -38,6 +38,7 @@ class LoadOptions:
     # Streams a table holds beside the calibrated pair (a2x…, g2x…, mx…, temp): (kind, part),
     # the part's ``sensor`` naming the instance ("a2", "m", "temp").
     extras: list[tuple[str, Part]] = field(default_factory=list)
+    number_samples: bool = False  # no time and no rate: t = 0, 1, 2, ... (load_session)
 
 
 def columns_for(opts: LoadOptions, sensors: tuple[str, ...], source: str

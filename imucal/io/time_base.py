@@ -15,6 +15,8 @@ from imucal.session import chunks_all
 MAX_RATE_HZ = 100_000.0
 MAX_BRIDGED_RUN = 5  # longest run of non-finite samples that is interpolated instead of refused
 MAX_BRIDGED_FRACTION = 0.05  # and at most this share of a recording may be interpolated
+NUMBERED_NOTE = ("no time column and no rate: t is the sample number (0, 1, 2, ...), which a "
+                 "calibration of one segment does not use")
 RATE_TOLERANCE = 0.01  # a stated rate further than this from the one used is a note
 
 
@@ -89,6 +91,9 @@ def settle_time(part: Part, opts: LoadOptions, empty: Empty = np.empty
                         _Counter(n), empty)  # = np.arange(n, dtype=np.float64) / rate
         if opts.rate is None:
             opts.notes.append(f"timestamps from the rate {rate:g} Hz{rate_from}")
+    elif opts.number_samples:
+        t = elementwise(lambda i, out: np.copyto(out, i), _Counter(n), empty)
+        opts.notes.append(NUMBERED_NOTE)  # once for both sensors (notes are deduplicated)
     else:
         why = f" ({part.counter_label} is a sample counter, not time)" if part.counter_label else ""
         raise ImucalError(f"{label}: no time column{why}; a sample rate is needed (--rate HZ)",

@@ -30,7 +30,12 @@ from imucal.stages.apply import CalibratedSignals
 
 AXES = ("x", "y", "z")
 STEP_ROWS = 1 << 16  # times read at once for the steps inside the blocks
-MAX_STILL_DRIFT = 0.01  # of |g|: above it the recording is not still (see StreamingNoise)
+# Of |g|: above it the recording is not still (see StreamingNoise), and no Kalibr noise block
+# is given from it. A tilt of 3 degrees moves a gravity component by 5 % of |g|, a turn by tens
+# of percent (180 % at tau = 41 s on sample_data); the bias random walk of a poor MEMS part,
+# 1e-3 (m/s^3)/sqrt(Hz), reaches 0.4 % in an hour, and the tests' strong synthetic one (5e-3)
+# 1.2 % at tau = 655 s: noise, which a 1 % limit called motion.
+MAX_STILL_DRIFT = 0.05
 # unit of the signal -> (white noise density, random walk) units
 DENSITY_UNITS = {
     "g": ("g/sqrt(Hz)", "g/s/sqrt(Hz)"),
@@ -82,6 +87,9 @@ class NoiseReport:
     gyroscope: SensorNoise | None
     source: str  # where the samples came from, in words
     notes: tuple[str, ...] = field(default_factory=tuple)
+    # A long recording that should be still: False where it moved (the figures then measure the
+    # motion, and no noise block is given from them); None where not judged (still blocks).
+    still: bool | None = None
 
 
 def sensor_noise(sensor: str, unit: str, rate_hz: float, curve: AllanCurve) -> SensorNoise:
@@ -216,6 +224,7 @@ class StreamingNoise:
     def report(self, source: str) -> NoiseReport:
         out: dict[str, SensorNoise | None] = {"accelerometer": None, "gyroscope": None}
         notes = []
+        still = True
         for sensor, c in self.clock.items():
             t0, t1, n, _step, gaps = c
             if n < 2 or t1 <= t0:
@@ -229,8 +238,10 @@ class StreamingNoise:
             if sensor == "accelerometer" and len(curve.lags) and centre is not None:
                 # A still accelerometer's mean drifts by far less than 1 % of |g| (bias
                 # instability of MEMS parts: 0.01-1 mg); a turn moves it by tens of percent.
+                # The largest tau's deviation against MAX_STILL_DRIFT (see there).
                 moved = float(np.sqrt(curve.avar[-1].max()) / max(np.linalg.norm(centre), 1e-300))
                 if moved > MAX_STILL_DRIFT:
+                    still = False
                     notes.append(f"the recording does not look still: the accelerometer's "
                                  f"Allan deviation at tau = {curve.lags[-1] / rate:.3g} s is "
                                  f"{100 * moved:.2g} % of its mean magnitude; the figures "
@@ -238,4 +249,4 @@ class StreamingNoise:
             if len(curve.lags):
                 out[sensor] = sensor_noise(sensor, self.units[sensor] or "", rate, curve)
         return NoiseReport(accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
-                           source=source, notes=tuple(notes))
+                           source=source, notes=tuple(notes), still=still)

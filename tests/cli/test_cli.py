@@ -74,7 +74,7 @@ def work(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("cli")
     proc = run("synth", "s.mat", "--poses", "30", "--seed", "3", cwd=d)
     assert proc.returncode == 0, proc.stderr
-    assert (d / "s.mat").is_file() and (d / "s.truth.json").is_file()
+    assert (d / "s.mat").is_file() and (d / "s.mat.truth.json").is_file()
     assert "wrote s.mat" in proc.stdout
     # The installed script, run by its Python with -X importtime: which modules it loads.
     proc = subprocess.run([sys.executable, "-X", "importtime", IMUCAL, "calibrate", "s.mat",
@@ -89,7 +89,7 @@ def work(tmp_path_factory) -> Path:
 
 def test_calibrate_recovers_the_truth(work: Path) -> None:
     calib = json.loads((work / "calib.json").read_text())
-    truth = json.loads((work / "s.truth.json").read_text())
+    truth = json.loads((work / "s.mat.truth.json").read_text())
     assert calib["format"] == "imucal-calibration"
     assert len(calib["segments"]) == 1
     acc, true_acc = calib["segments"][0]["accelerometer"], truth["accelerometer"]
@@ -118,7 +118,7 @@ def test_apply_parquet(work: Path) -> None:
     df = pl.read_parquet(work / "cal.parquet")
     assert df.height == raw["acc"].shape[0]
     assert {"t", "ax", "ay", "az", "gx", "gy", "gz"} <= set(df.columns)
-    truth = json.loads((work / "s.truth.json").read_text())
+    truth = json.loads((work / "s.mat.truth.json").read_text())
     t = df["t"].to_numpy()
     acc = df.select("ax", "ay", "az").to_numpy()
     still = _still_mask(t, truth)

@@ -95,6 +95,9 @@ def _read_noise(path: Path) -> dict:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ImucalError(f"not a readable JSON file ({e.__class__.__name__})",
                           source=str(path)) from None
+    if isinstance(data, dict) and data.get("still") is False:
+        raise ImucalError("the recording was not still: its figures measure the motion, not "
+                          "the noise", source=str(path), field="noise")
     noise = data.get("noise", data) if isinstance(data, dict) else None
     if not isinstance(noise, dict) or not ({"accelerometer", "gyroscope"} & set(noise)):
         raise ImucalError("expected the noise figures of 'imucal noise --out' (keys "
