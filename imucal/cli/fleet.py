@@ -66,6 +66,10 @@ def _progress_line(counts, tty: bool) -> None:
     sys.stderr.flush()
 
 
+# A --gyro ending so names a file (a log's stream names a topic, an IMU, a dataset).
+_DATA_SUFFIXES = {".mat", ".csv", ".tsv", ".txt", ".dat", ".log", ".parquet", ".h5", ".hdf5"}
+
+
 @app.command()
 @shared_options(INPUT_OPTIONS, SETTING_OPTIONS)
 def batch(
@@ -106,7 +110,8 @@ def batch(
     A session that fails is a row with its error; re-running skips sessions whose input
     (sha256), settings and spec are unchanged. Exit 1 when a session failed or broke the spec.
     """
-    if options["gyro"] is not None and load_kwargs(**pick(options, INPUT_OPTIONS))["gyro_path"]:
+    gyro = options["gyro"]
+    if gyro is not None and (Path(gyro).exists() or Path(gyro).suffix.lower() in _DATA_SUFFIXES):
         raise usage_error("--gyro names one file; in a batch each session file holds its "
                           "gyroscope (a log's gyroscope stream may be named)", "'--gyro'")
     if workers is not None and scheduler is not None:
