@@ -157,7 +157,13 @@ def test_real_window_draws_every_tab_on_an_opaque_visual(rrd, tmp_path):
                 client = None
                 assert time.monotonic() < deadline, "the native viewer never answered"
                 time.sleep(0.5)
-        bp = client.get_blueprint()
+        bp = None
+        while bp is None:  # the recording may not have arrived when the viewer first answers
+            try:
+                bp = client.get_blueprint()
+            except ConnectionError:
+                assert time.monotonic() < deadline, "the recording never opened"
+                time.sleep(0.5)
         tabs = _tabs(bp.blueprint)
         assert len(tabs) == 6
         previous = None
