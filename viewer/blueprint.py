@@ -124,8 +124,8 @@ def _overview(result: Result | None, signals: SignalRows | None, gyro: bool
     return rrb.Horizontal(
         _with_lanes(*rows),
         rrb.Vertical(rrb.TextDocumentView(name="Summary", origin=P.SUMMARY),
-                     _gravity3d("Gravity at each still block: green measured, red/blue "
-                                "predicted (raw/calibrated gyro)", every_block=True),
+                     _gravity3d("Gravity per block: green measured, red/blue predicted",
+                                every_block=True),
                      row_shares=[3, 2]),
         guide_column(result), column_shares=[3, 2, 2], name="Overview")
 

@@ -26,7 +26,7 @@ import rerun as rr
 from . import paths as P
 from .columns import AFTER, BEFORE, log10_axis
 from .layout import EVIDENCE_BOX
-from .plot2d import Series, linear_axis, log_axis, log_plot
+from .plot2d import Axis, Series, linear_axis, log_axis, log_plot
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -60,6 +60,7 @@ def _plot(rec: rr.RecordingStream, base: str, t: np.ndarray, before: np.ndarray 
         series.append(Series(name, label, color, t, y, line=False, size=3.0,
                              values={"t_s": np.asarray(t, float), unit: np.asarray(v, float)}))
     xa = linear_axis(t, pad=0.03, most=4)
+    xa = Axis(xa.lo, xa.hi, xa.ticks, [f"{label} s" for label in xa.labels])  # x has no title
     log_plot(rec, base, EVIDENCE_BOX, xa, log_axis(np.concatenate(ys), most=5), series)
 
 

@@ -177,5 +177,7 @@ def guide_views(result: Result | None = None) -> list[rrb.View]:
 def guide_column(result: Result | None = None) -> rrb.Vertical:
     """:func:`guide_views` stacked, the sphere taller than the plots."""
     views = guide_views(result)
-    # The sphere reads well small; the plots need height for their y ticks.
-    return rrb.Vertical(*views, row_shares=[1.3] + [1.0] * (len(views) - 1))
+    # The sphere reads well small; the plots need height for their y ticks (the time plots
+    # label every 1, 10 or 100 units, whichever is at least ~25 px apart: the holds, up to
+    # ~9 s on the Ferraris session, need ~230 px to show theirs).
+    return rrb.Vertical(*views, row_shares=[1.0, 1.25] + [1.0] * (len(views) - 2))

@@ -112,9 +112,12 @@ def cost_falls(result: Result, sensor: str) -> list[float]:
 def cost_title(result: Result | None, sensor: str) -> str:
     """``Accelerometer: cost (log scale) per accepted step, fell 0.0597 %``."""
     falls = [] if result is None else cost_falls(result, sensor)
+    def fall(pct: float) -> str:  # 99.97 % reads "100 %": say how many times lower
+        return f"{pct:.3g} %" if pct < 99.0 else f"{100.0 / max(100.0 - pct, 1e-300):.3g}-fold"
+
     change = ""
     if len(falls) == 1:
-        change = f", fell {falls[0]:.3g} %"
+        change = f", fell {fall(falls[0])}"
     elif falls:
-        change = f", fell {min(falls):.3g} to {max(falls):.3g} %"
+        change = f", fell {fall(min(falls))} to {fall(max(falls))}"
     return f"{sensor.capitalize()}: cost (log scale, a decade at least) per accepted step{change}"

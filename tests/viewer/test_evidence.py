@@ -146,6 +146,11 @@ def test_optimiser_cost_axis_spans_a_decade_and_the_title_says_the_fall(sample):
     _, y, _ = _series(rrd, P.iteration_series("segment_0", "accelerometer", "log10_cost",
                                               "cost"))
     assert (y.max() - y.min()) / (axis.hi - axis.lo) < 0.01
+    gyro = cost_falls(result, "gyroscope")
+    assert len(gyro) == 1 and gyro[0] > 99.0  # a fall by thousands: said as a factor
+    c = np.asarray(result.segments[0].gyro.report.trace_cost, float)
     names = _view_names(blueprint(result))
+    assert f"Gyroscope: cost (log scale, a decade at least) per accepted step, fell " \
+           f"{c[0] / c[-1]:.3g}-fold" in names
     assert f"Accelerometer: cost (log scale, a decade at least) per accepted step, fell " \
            f"{falls[0]:.3g} %" in names
