@@ -113,7 +113,10 @@ def cost_title(result: Result | None, sensor: str) -> str:
     """``Accelerometer: cost (log scale) per accepted step, fell 0.0597 %``."""
     falls = [] if result is None else cost_falls(result, sensor)
     def fall(pct: float) -> str:  # 99.97 % reads "100 %": say how many times lower
-        return f"{pct:.3g} %" if pct < 99.0 else f"{100.0 / max(100.0 - pct, 1e-300):.3g}-fold"
+        if pct < 99.0:
+            return f"{pct:.3g} %"
+        times = float(f"{100.0 / max(100.0 - pct, 1e-300):.3g}")  # 3 digits: 3,780-fold
+        return f"{times:,.0f}-fold" if times >= 100 else f"{times:g}-fold"
 
     change = ""
     if len(falls) == 1:
