@@ -48,6 +48,8 @@ from urllib.parse import quote
 from imucal.errors import ImucalError
 from imucal.io.atomic import Transaction
 
+from .native_check import black_window_reason
+
 if TYPE_CHECKING:
     from imucal.result import Result
 
@@ -370,6 +372,9 @@ def show(target: str, *, save: str | None = None, web: bool = False,
     if rerun is None:
         raise ImucalError("the 'rerun' viewer is not installed (pip install rerun-sdk)",
                           source="viewer")
+    black = None if web else black_window_reason(os.environ)
+    if black is not None:  # before the (slow) calibration: a window that would stay black
+        raise ImucalError(black, source="viewer")
     # The ports are checked before the (slow) calibration: a taken one fails at once.
     grpc = choose_port(grpc_port, None, bind, "--grpc-port")
     web_port = choose_port(port, DEFAULT_WEB_PORT, bind, "--port") if web else None

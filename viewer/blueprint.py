@@ -4,14 +4,16 @@ moment its tab opens.
 =============== =================================================================================
 Tab             Views
 =============== =================================================================================
-Overview        accelerometer magnitude (raw vs calibrated, robust y range), gyroscope magnitude,
-                still blocks and segments lanes | summary (markdown) over the gravity arrows (3D)
+Overview        accelerometer magnitude (raw vs calibrated, robust y range), the rotation error
+                per turn and |ā|/g − 1 per still block, before vs after on log axes (the
+                evidence: viewer.evidence), still blocks and segments lanes | summary
+                (markdown) over every block's gravity arrows (3D) | the guide
 Signals         accelerometer raw | gyroscope raw over accelerometer calibrated | gyroscope
                 calibrated, detector statistic with its threshold (log10), lanes
 Gravity         gravity arrows at the time cursor (3D) | angle measured-predicted per rotation and
                 static block norm error, each before vs after and after alone, lanes
-L-curve         the L-curve (corner marked) | static norm error and the 9 accelerometer
-                parameters against lambda (2D plots)
+L-curve         static norm error and the 9 accelerometer parameters against lambda (2D plots)
+                | the L-curve (its corner, or "no corner" when the fit is well posed)
 Optimiser       cost and parameters at each accepted step, one column per sensor (2D plots)
 Summary         the markdown summary, full size
 =============== =================================================================================
@@ -31,9 +33,10 @@ from typing import TYPE_CHECKING
 import rerun.blueprint as rrb
 
 from . import paths as P
+from .evidence import evidence_titles
 from .guide import guide_column
-from .layout import LCURVE_BOX, SWEEP_BOX, TRACE_BOX, TRACE_BOX_WIDE, Box
-from .optimiser import WHATS
+from .layout import EVIDENCE_BOX, LCURVE_BOX, SWEEP_BOX, TRACE_BOX, TRACE_BOX_WIDE, Box
+from .optimiser import WHATS, cost_title
 from .ranges import robust_range
 from .signal_rows import SignalRows, signal_rows
 
@@ -80,9 +83,18 @@ def _row(*views: rrb.Container | rrb.View) -> rrb.Container | rrb.View:
     return views[0] if len(views) == 1 else rrb.Horizontal(*views)
 
 
-def _gravity3d(name: str) -> rrb.Spatial3DView:
+def _gravity3d(name: str, every_block: bool = False) -> rrb.Spatial3DView:
+    """The gravity arrows at the time cursor; ``every_block``: every block's at once (the
+    layout opens at the start, where block 0 has no prediction: one arrow, nothing to
+    compare), the previous block's grey arrows left out."""
+    extra = {}
+    if every_block:
+        extra["time_ranges"] = [rrb.VisibleTimeRange(
+            P.TIME, start=rrb.TimeRangeBoundary.infinite(),
+            end=rrb.TimeRangeBoundary.infinite())]
     return rrb.Spatial3DView(
-        name=name, origin=P.GRAVITY, contents=[f"{P.GRAVITY}/**"],
+        name=name, origin=P.GRAVITY, **extra,
+        contents=[f"{P.GRAVITY}/**"] + ([f"- {P.GRAVITY_PREVIOUS}"] if every_block else []),
         line_grid=rrb.LineGrid3D(visible=False),
         eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=[1.05, -1.35, 0.85],
                                        look_target=[0, 0, 0], eye_up=[0, 0, 1]))
@@ -96,18 +108,24 @@ def _plot2d(name: str, origin: str, box: Box) -> rrb.Spatial2DView:
 
 def _overview(result: Result | None, signals: SignalRows | None, gyro: bool
               ) -> rrb.Horizontal:
+    """The accelerometer's magnitude (raw vs calibrated), then the evidence per turn and per
+    still block, before vs after on log axes (:mod:`viewer.evidence`: the gyroscope's raw and
+    calibrated magnitudes overlap, so they show nothing of its calibration), over the lanes;
+    the summary over the gravity arrows; the guide."""
     acc_unit = "" if result is None else f" ({result.calibration.acc_unit})"
     acc_range = None if signals is None else signals.acc.y_range
-    magnitudes = [_ts(f"Accelerometer magnitude{acc_unit}: raw (orange, nominal scale) vs "
-                      "calibrated (blue)", P.ACC_MAGNITUDE, y_range=acc_range)]
+    turns_title, blocks_title = evidence_titles(result)
+    rows: list[rrb.View] = [_ts(f"Accelerometer magnitude{acc_unit}: raw (orange, nominal "
+                                "scale) vs calibrated (blue)", P.ACC_MAGNITUDE,
+                                y_range=acc_range)]
     if gyro:
-        gyro_range = None if signals is None or signals.gyro is None else signals.gyro.y_range
-        magnitudes.append(_ts("Gyroscope magnitude (rad/s): raw (orange, nominal scale) vs "
-                              "calibrated (blue)", P.GYRO_MAGNITUDE, y_range=gyro_range))
+        rows.append(_plot2d(turns_title, P.EVIDENCE_TURNS, EVIDENCE_BOX))
+    rows.append(_plot2d(blocks_title, P.EVIDENCE_BLOCKS, EVIDENCE_BOX))
     return rrb.Horizontal(
-        _with_lanes(*magnitudes),
+        _with_lanes(*rows),
         rrb.Vertical(rrb.TextDocumentView(name="Summary", origin=P.SUMMARY),
-                     _gravity3d("Gravity: green measured, red/blue predicted"),
+                     _gravity3d("Gravity per block: green measured, red/blue predicted",
+                                every_block=True),
                      row_shares=[3, 2]),
         guide_column(result), column_shares=[3, 2, 2], name="Overview")
 
@@ -157,28 +175,42 @@ def _gravity(result: Result | None, gyro: bool) -> rrb.Container:
 
 
 def _lcurve(result: Result | None) -> rrb.Container:
+    """What each λ gives (the error first, then the parameters) on the left, the L-curve on
+    the right; when the fit is well posed (``LCurve.well_posed``: no L, every λ up to some
+    value gives the same fit) the titles say so instead of naming a corner."""
     unit = "raw unit" if result is None else result.session.acc_unit
-    curve = _plot2d("L-curve: residual norm ρ vs solution norm η (log-log), corner in red",
-                    P.LCURVE, LCURVE_BOX)
+    lc = None if result is None else result.whole.lcurve
+    if lc is not None and lc.well_posed:
+        same = f"{lc.lambdas[lc.same_fit_until]:.3g}"
+        curve_title = (f"L-curve ρ vs η (log-log): no corner, the fit is well posed: every "
+                       f"λ up to {same} gives the same fit")
+        static_title = (f"Static norm error (mg, log) vs λ: RMS and max over the still "
+                        f"blocks; all λ below {same} give the same fit")
+    else:
+        curve_title = "L-curve: residual norm ρ vs solution norm η (log-log), corner in red"
+        static_title = "Static norm error (mg, log scale) vs λ: RMS and max over the still blocks"
+    curve = _plot2d(curve_title, P.LCURVE, LCURVE_BOX)
     if result is not None and result.whole.sweep is None:
         return rrb.Horizontal(curve, name="L-curve")
     return rrb.Horizontal(
-        curve,
         rrb.Vertical(
-            _plot2d("Static norm error (mg, log scale) vs λ: RMS and max over the still blocks",
-                    P.LAMBDA_STATIC, SWEEP_BOX),
+            _plot2d(static_title, P.LAMBDA_STATIC, SWEEP_BOX),
             _plot2d("Accelerometer misalignment (rad) vs λ", P.LAMBDA_MISALIGNMENT, SWEEP_BOX),
             _plot2d("Accelerometer scale vs λ", P.LAMBDA_SCALE, SWEEP_BOX),
             _plot2d(f"Accelerometer bias ({unit}) vs λ", P.LAMBDA_BIAS, SWEEP_BOX)),
+        curve,
         column_shares=[1, 1], name="L-curve")
 
 
-def _optimiser(gyro: bool) -> rrb.Horizontal:
+def _optimiser(result: Result | None, gyro: bool) -> rrb.Horizontal:
     box = TRACE_BOX if gyro else TRACE_BOX_WIDE
-    labels = {"log10_cost": "cost (log scale)", "misalignment": "misalignment",
-              "scale": "scale", "bias": "bias"}
-    columns = [rrb.Vertical(*[_plot2d(f"{sensor.capitalize()}: {labels[what]} per accepted "
-                                      "step of the optimiser", P.iteration(sensor, what), box)
+
+    def title(sensor: str, what: str) -> str:
+        if what == "log10_cost":
+            return cost_title(result, sensor)
+        return f"{sensor.capitalize()}: {what} per accepted step of the optimiser"
+
+    columns = [rrb.Vertical(*[_plot2d(title(sensor, what), P.iteration(sensor, what), box)
                               for what in WHATS])
                for sensor in ["accelerometer"] + (["gyroscope"] if gyro else [])]
     return rrb.Horizontal(*columns, name="Optimiser")
@@ -202,7 +234,7 @@ def blueprint(result: Result | None = None, active_tab: int | str = 0,
                                             _gravity(result, gyro)]
     if lcurve:
         tabs.append(_lcurve(result))
-    tabs.append(_optimiser(gyro))
+    tabs.append(_optimiser(result, gyro))
     tabs.append(rrb.TextDocumentView(name="Summary", origin=P.SUMMARY))
 
     if isinstance(active_tab, str):  # by name: tabs without data are left out

@@ -124,10 +124,21 @@ def _whole_axis() -> rrb.TimeAxis:
                                                  end=rrb.TimeRangeBoundary.infinite()))
 
 
-def _ts(name: str, *contents: str) -> rrb.TimeSeriesView:
-    # No legend: it would cover the points; the title names the colours and the limits.
+def _ts(name: str, *contents: str, top: float | None = None) -> rrb.TimeSeriesView:
+    """No legend: it would cover the points; the title names the colours and the limits.
+    ``top``: the y axis from 0 to it (a small plot's own range can leave it one tick, or
+    none: "Still block duration" on a session whose holds all lie near the minimum)."""
+    axis_y = None if top is None else rrb.ScalarAxis(range=(0.0, top))
     return rrb.TimeSeriesView(name=name, origin="/", contents=list(contents),
-                              axis_x=_whole_axis(), plot_legend=rrb.PlotLegend(visible=False))
+                              axis_x=_whole_axis(), axis_y=axis_y,
+                              plot_legend=rrb.PlotLegend(visible=False))
+
+
+def _top(*values) -> float | None:
+    """A y axis's top: 12 % over the largest finite value (None when there is none)."""
+    v = np.concatenate([np.ravel(np.asarray(x, float)) for x in values])
+    v = v[np.isfinite(v)]
+    return float(v.max()) * 1.12 if len(v) and v.max() > 0 else None
 
 
 def guide_views(result: Result | None = None) -> list[rrb.View]:
@@ -147,17 +158,26 @@ def guide_views(result: Result | None = None) -> list[rrb.View]:
             eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital,
                                            position=[1.65, -2.0, 1.35], look_target=[0, 0, 0],
                                            eye_up=[0, 0, 1])),
-        _ts(f"Still block duration (s); red: minimum{hold_min}",
-            P.GUIDE_HOLD, P.GUIDE_HOLD_NEAR_MIN, P.GUIDE_HOLD_MIN, P.GUIDE_HOLD_WARN)]
+        _ts(f"Still block duration (s); red: minimum{hold_min}, grey: {NEAR_MIN_FACTOR:g}x",
+            P.GUIDE_HOLD, P.GUIDE_HOLD_NEAR_MIN, P.GUIDE_HOLD_MIN, P.GUIDE_HOLD_WARN,
+            top=None if g is None else _top(g.holds.duration_s,
+                                             g.holds.min_s * NEAR_MIN_FACTOR))]
     if gyro:
+        t = None if g is None else g.turns
         views += [_ts(f"Turns: peak rate (rad/s); red line: limit{rate}", P.GUIDE_TURN_RATE,
-                      P.GUIDE_TURN_FAST, P.GUIDE_TURN_LIMIT),
+                      P.GUIDE_TURN_FAST, P.GUIDE_TURN_LIMIT,
+                      top=None if t is None else _top(t.peak_rate, t.rate_limit)),
                   _ts(f"Turns: gravity tilt (deg) green, rotation blue; red: min{tilt}",
-                      P.GUIDE_TURN_TILT, P.GUIDE_TURN_ANGLE, P.GUIDE_TURN_MIN_TILT)]
+                      P.GUIDE_TURN_TILT, P.GUIDE_TURN_ANGLE, P.GUIDE_TURN_MIN_TILT,
+                      top=None if t is None else _top(t.tilt_deg, t.angle_deg,
+                                                      t.min_tilt_deg))]
     return views
 
 
 def guide_column(result: Result | None = None) -> rrb.Vertical:
     """:func:`guide_views` stacked, the sphere taller than the plots."""
     views = guide_views(result)
-    return rrb.Vertical(*views, row_shares=[2.0] + [1.0] * (len(views) - 1))
+    # The sphere reads well small; the plots need height for their y ticks (the time plots
+    # label every 1, 10 or 100 units, whichever is at least ~25 px apart: the holds, up to
+    # ~9 s on the Ferraris session, need ~230 px to show theirs).
+    return rrb.Vertical(*views, row_shares=[1.0, 1.25] + [1.0] * (len(views) - 2))

@@ -38,3 +38,6 @@ SWEEP_BOX = Box.fitting(793, 192)
 # Optimiser tab: four plots per sensor, one column per sensor (the whole width without one).
 TRACE_BOX = Box.fitting(793, 192)
 TRACE_BOX_WIDE = Box.fitting(1593, 192)
+# Overview: the evidence plots (:mod:`viewer.evidence`), stacked in the left column (3/7 of
+# the width) with the accelerometer's magnitude, over the lanes.
+EVIDENCE_BOX = Box.fitting(683, 226, left=60, right=80, top=14, bottom=30)

@@ -65,7 +65,9 @@ def _log_lcurve_plot(rec: rr.RecordingStream, curves: list) -> None:
     for (path, lc, _, name), pts in zip(curves, xy):
         c = lc.corner
         if 0 <= c < len(lc.lambdas) and np.all(np.isfinite(pts[c])):
-            label = ("" if len(curves) == 1 else f"{name}: ") + f"corner λ = {lc.lambdas[c]:.3g}"
+            # Well posed, the "corner" is only where the prior starts to bias the fit.
+            what = "chosen λ = {:.3g} (no corner)" if lc.well_posed else "corner λ = {:.3g}"
+            label = ("" if len(curves) == 1 else f"{name}: ") + what.format(lc.lambdas[c])
             taken.append(_label_box(to_scene(box, xa, ya, pts[c:c + 1])[0], label, 7.0))
             corners.append(Series(
                 _corner_name(path),
@@ -139,7 +141,8 @@ def _log_sweep(result: Result, rec: rr.RecordingStream) -> None:
     x = log10_axis(lam)
     xa = log_axis(x)
     c = lc.corner if 0 <= lc.corner < len(lam) else -1
-    mark = [Mark(float(x[c]), f"corner λ = {lam[c]:.3g}", CORNER)] if c >= 0 else []
+    chosen = "chosen λ = {:.3g} (no corner)" if lc.well_posed else "corner λ = {:.3g}"
+    mark = [Mark(float(x[c]), chosen.format(lam[c]), CORNER)] if c >= 0 else []
     rms, worst = sweep.static_norm_rms_mg, sweep.static_norm_max_mg
     y = {"rms": log10_axis(rms), "max": log10_axis(worst)}
     static = [Series("rms", "RMS", CALIBRATED, x, y["rms"], values={"lambda": lam, "mg": rms}),

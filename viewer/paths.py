@@ -83,6 +83,11 @@ def iteration_series(fit: str, sensor: str, what: str, param: str) -> str:
     return series(iteration(sensor, what), f"{fit}/{param}")
 
 
+# The Overview's evidence (:mod:`viewer.evidence`): 2D plots, x = time (s), y = log10 of the
+# error's size; series before | after with AnyValues t_s and deg / mg (signed)
+EVIDENCE_TURNS = "evidence/rotation_error_deg"  # per turn: GyroFit.angle_before | angle_after
+EVIDENCE_BLOCKS = "evidence/block_norm_error_mg"  # per block: Quality.block_norm_error_*mg
+
 # Results (static)
 SUMMARY = "calibration/summary"  # TextDocument, markdown
 INFO = "calibration/info"  # AnyValues: source, units, lambda, warnings, ...

@@ -123,14 +123,18 @@ def linear_axis(values: np.ndarray, pad: float = 0.06, most: int = 5) -> Axis:
     return Axis(lo, hi, ticks, tick_labels(ticks))
 
 
-def log_axis(log10_values: np.ndarray, pad: float = 0.04, most: int = 6) -> Axis:
+def log_axis(log10_values: np.ndarray, pad: float = 0.04, most: int = 6,
+             min_span: float = 0.0) -> Axis:
     """An axis over log10 values, ticked at decades (every few when there are many), else at
-    1 and 3, or 1, 2 and 5 times them, else at round values within one decade."""
+    1 and 3, or 1, 2 and 5 times them, else at round values within one decade. ``min_span``:
+    at least that many decades, centred on the values (so a change of a fraction of a percent
+    stays one)."""
     v = np.asarray(log10_values, float)
     v = v[np.isfinite(v)]
     lo, hi = (float(v.min()), float(v.max())) if len(v) else (0.0, 1.0)
-    if hi - lo < 1e-9:
-        lo, hi = lo - 0.5, hi + 0.5
+    if hi - lo < max(min_span, 1e-9):
+        mid, half = (lo + hi) / 2, max(min_span, 1.0) / 2
+        lo, hi = mid - half, mid + half
     lo, hi = lo - pad * (hi - lo), hi + pad * (hi - lo)
     decades = range(math.floor(lo), math.ceil(hi) + 1)
     for mult in ((1.0,), (1.0, 3.0), (1.0, 2.0, 5.0)):

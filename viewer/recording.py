@@ -40,6 +40,13 @@ detector/segments                            time       StateChange "segment i",
 blocks/norm_error_mg/before | after          time       Scalars ``|mean a| / g - 1`` in mg, one
                                                         row per static block at its middle
                                                         (``Quality.block_norm_error_[before_]mg``)
+evidence/rotation_error_deg/before | after   static     Overview: 2D plot, x time (s) of the turn's
+                                                        end, y log10 |angle| (deg):
+                                                        ``GyroFit.angle_before|after``; AnyValues
+                                                        t_s, deg
+evidence/block_norm_error_mg/before | after  static     Overview: 2D plot, x block middle (s), y
+                                                        log10 of ``|Quality.block_norm_error_
+                                                        [before_]mg|``; AnyValues t_s, mg (signed)
 gravity/axes                                 static     Arrows3D body x, y, z
 gravity/measured                             time       Arrows3D unit gravity u_k of static block k
                                                         (mean calibrated acceleration,
@@ -134,6 +141,7 @@ from imucal.io.atomic import atomic_path
 
 from . import paths as P
 from .decimate import DECIMATE_ABOVE, ENVELOPE_ROWS, SCREEN_ROWS, STILL_ROWS
+from .evidence import log_evidence
 from .gravity import log_gravity
 from .guide import log_guide
 from .lcurve import log_lcurves
@@ -162,6 +170,7 @@ def log_result(result: Result, rec: rr.RecordingStream, signals: SignalRows | No
     log_signals(result, rec, rows, signals)
     log_detector(result, rec, rows, signals)
     log_block_errors(result, rec, rows)
+    log_evidence(result, rec)
     log_gravity(result, rec, rows)
     log_guide(result, rec, rows)
     log_lcurves(result, rec, rows)

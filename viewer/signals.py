@@ -83,7 +83,9 @@ def _log_lanes(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) ->
     """Still blocks and segments as state lanes: a state at each start, reset at each end."""
     times = result.block_times.ravel()  # t_start, t_end of block 0, then block 1, ...
     states = ["still", ""] * len(result.block_times)
-    rec.log(P.DETECTOR_BLOCKS, rr.StateConfiguration(values=["still"], labels=["still"],
+    # No text in the bars: a still block is a few pixels wide at the default window, where
+    # "still" was cut to "sti"; the lanes' title names the green.
+    rec.log(P.DETECTOR_BLOCKS, rr.StateConfiguration(values=["still"], labels=[" "],
                                                      colors=rgba([STILL])), static=True)
     rec.send_columns(P.DETECTOR_BLOCKS, indexes=[rr.TimeColumn(P.TIME, duration=times)],
                      columns=rr.StateChange.columns(state=states))

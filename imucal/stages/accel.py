@@ -44,6 +44,26 @@ class LCurve:
     corner: int  # index of the chosen lambda, -1 when lambda was fixed off the grid
     curvature: np.ndarray
 
+    SAME_FIT = 1e-3  # two fits are "the same" when their rho and eta agree to 0.1 %
+
+    @property
+    def same_fit_until(self) -> int:
+        """Index of the largest lambda whose fit is the smallest lambda's (rho and eta both
+        within :attr:`SAME_FIT` of its): below it the prior changes nothing."""
+        rho, eta = np.asarray(self.residual_norm, float), np.asarray(self.solution_norm, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            same = ((np.abs(rho / rho[0] - 1) <= self.SAME_FIT)
+                    & (np.abs(eta / eta[0] - 1) <= self.SAME_FIT))
+        return int(np.argmin(same) - 1) if not same.all() else len(same) - 1
+
+    @property
+    def well_posed(self) -> bool:
+        """No L (M3): the chosen lambda lies on the flat stretch where every lambda gives the
+        unregularised fit (or just past it), so the data fix the parameters unaided and the
+        "corner" is only where the prior starts to bias them; an ill-posed fit's L has eta
+        falling steeply before rho rises, far past the flat stretch."""
+        return 0 <= self.corner <= self.same_fit_until + 1
+
 
 @dataclass(frozen=True)
 class AccFit:

@@ -227,7 +227,9 @@ def test_web_default_port_taken_picks_a_free_one_and_says_so(rrd, tmp_path):
 
 def _display_wrapper() -> list[str]:
     if shutil.which("xvfb-run"):
-        return ["xvfb-run", "-a", "-s", "-screen 0 1280x800x24"]
+        # Without the Composite extension: no 32-bit visual, so the window draws with Mesa's
+        # software renderer and imucal-view opens it (viewer/native_check.py).
+        return ["xvfb-run", "-a", "-s", "-screen 0 1280x800x24 -extension Composite"]
     if os.environ.get("DISPLAY"):
         return []
     need("needs a display or Xvfb: install the Debian package xvfb")
