@@ -1,0 +1,360 @@
+"""ArduPilot DataFlash logs (``.bin``) and MAVLink telemetry logs (``.tlog``): the IMUs,
+compasses and thermometers as streams, read with pymavlink.
+
+DataFlash (ArduPilot ``libraries/AP_InertialSensor/AP_InertialSensor_Logging.cpp``,
+``AP_Compass``), every vector in ArduPilot's body frame, FRD (the board rotation
+``AHRS_ORIENTATION`` applied):
+
+- ``IMU``, ``IMU2``, ``IMU3`` (older logs) or ``IMU`` with an instance field ``I`` (newer):
+  ``AccX..Z`` m/s^2, ``GyrX..Z`` rad/s, ``T`` deg C, at ``TimeUS``. What ArduPilot flies on:
+  after its own calibration (INS_ACCOFFS/ACCSCAL, gyro offsets, temperature calibration where
+  enabled) and its low-pass filters (INS_ACCEL_FILTER, INS_GYRO_FILTER), once per logging loop.
+- ``ACC``/``GYR`` with ``I`` (newer) or ``ACC1..3``/``GYR1..3`` (older): every sample at the
+  sensor's rate, after the calibration, at ``SampleUS`` (when the sensor sampled); written only
+  when raw IMU logging is enabled.
+- ``MAG``, ``MAG2``, ``MAG3`` (or ``MAG`` with ``I``): ``MagX..Z`` in milligauss, the field
+  ArduPilot uses (its compass offsets, logged beside as ``OfsX..Z``, already subtracted), at
+  ``TimeUS``.
+
+MAVLink (common.xml), the message's own clock (``time_usec`` µs or ``time_boot_ms`` ms):
+
+- ``SCALED_IMU``, ``SCALED_IMU2``, ``SCALED_IMU3``: accelerometer in mg, stated here in g
+  (divided by 1000), gyroscope in mrad/s, stated in rad/s (divided by 1000), magnetometer in
+  mgauss (kept, unit ``mG``), ``temperature`` in cdeg C, stated in deg C (divided by 100;
+  0 means "no thermometer", MAVLink's rule).
+- ``RAW_IMU``: "raw" values, unit ``counts`` as MAVLink defines them (ArduPilot in fact sends
+  the scaled mg, mrad/s and mgauss values here too; the loader's unit guess decides).
+- ``HIGHRES_IMU``: m/s^2, rad/s, gauss, deg C.
+
+pymavlink decodes message by message in Python; each message's values are collected as
+pymavlink unpacked them and turned into one array per message type.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from imucal.errors import ImucalError, plural
+from imucal.streams import Stream, StreamSet
+
+FORMAT_NAMES = {"dataflash": "ArduPilot DataFlash log", "tlog": "MAVLink telemetry log"}
+AP_FRAME = "FRD (ArduPilot body frame: AHRS_ORIENTATION applied)"
+_CALIBRATED = "ArduPilot has already applied its own calibration"
+
+
+# --- what is read ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Triad:
+    kind: str
+    columns: tuple[str, str, str]
+    unit: str
+    scale: float = 1.0  # divide by it: the stated unit from the message's
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """One message type's streams: the triads, the thermometer, the clock, and what to say."""
+
+    triads: tuple[_Triad, ...]
+    clock: tuple[str, ...]  # clock columns, the first present wins
+    clock_scale: float  # to seconds
+    temp: tuple[str, float] | None = None  # (column, divide by)
+    note: str = ""
+    temp_zero_is_missing: bool = False
+
+
+_IMU = _Layout((_Triad("acc", ("AccX", "AccY", "AccZ"), "m/s^2"),
+                _Triad("gyro", ("GyrX", "GyrY", "GyrZ"), "rad/s")),
+               ("TimeUS",), 1e-6, ("T", 1.0),
+               f"{_CALIBRATED} and its low-pass filters (INS_ACCEL_FILTER, INS_GYRO_FILTER); "
+               "one sample per logging loop")
+_ACC = _Layout((_Triad("acc", ("AccX", "AccY", "AccZ"), "m/s^2"),), ("SampleUS", "TimeUS"),
+               1e-6, None, f"every sensor sample; {_CALIBRATED}")
+_GYR = _Layout((_Triad("gyro", ("GyrX", "GyrY", "GyrZ"), "rad/s"),), ("SampleUS", "TimeUS"),
+               1e-6, None, f"every sensor sample; {_CALIBRATED}")
+_MAG = _Layout((_Triad("mag", ("MagX", "MagY", "MagZ"), "mG"),), ("TimeUS",), 1e-6, None,
+               "ArduPilot's compass calibration already applied (offsets, logged beside as "
+               "OfsX..Z; soft iron; motor compensation MOfsX..Z)")
+DATAFLASH = {"IMU": _IMU, "IMU2": _IMU, "IMU3": _IMU,
+             "ACC": _ACC, "ACC1": _ACC, "ACC2": _ACC, "ACC3": _ACC,
+             "GYR": _GYR, "GYR1": _GYR, "GYR2": _GYR, "GYR3": _GYR,
+             "MAG": _MAG, "MAG2": _MAG, "MAG3": _MAG}
+
+_SCALED = _Layout((_Triad("acc", ("xacc", "yacc", "zacc"), "g", 1000.0),
+                   _Triad("gyro", ("xgyro", "ygyro", "zgyro"), "rad/s", 1000.0),
+                   _Triad("mag", ("xmag", "ymag", "zmag"), "mG")),
+                  ("time_boot_ms",), 1e-3, ("temperature", 100.0),
+                  "MAVLink's mg and mrad/s divided by 1000 (g, rad/s), cdegC by 100",
+                  temp_zero_is_missing=True)
+_RAW = _Layout((_Triad("acc", ("xacc", "yacc", "zacc"), "counts"),
+                _Triad("gyro", ("xgyro", "ygyro", "zgyro"), "counts"),
+                _Triad("mag", ("xmag", "ymag", "zmag"), "counts")),
+               ("time_usec",), 1e-6, ("temperature", 100.0),
+               "MAVLink defines RAW_IMU as unscaled sensor values (ArduPilot sends mg, mrad/s "
+               "and mgauss in it)", temp_zero_is_missing=True)
+_HIGHRES = _Layout((_Triad("acc", ("xacc", "yacc", "zacc"), "m/s^2"),
+                    _Triad("gyro", ("xgyro", "ygyro", "zgyro"), "rad/s"),
+                    _Triad("mag", ("xmag", "ymag", "zmag"), "gauss")),
+                   ("time_usec",), 1e-6, ("temperature", 1.0))
+TLOG = {"SCALED_IMU": _SCALED, "SCALED_IMU2": _SCALED, "SCALED_IMU3": _SCALED,
+        "RAW_IMU": _RAW, "HIGHRES_IMU": _HIGHRES}
+
+
+@dataclass
+class _Rows:
+    """One message type's (or instance's) values as pymavlink decoded them."""
+
+    columns: dict[str, int]
+    rows: list = field(default_factory=list)
+    mults: list[float] | None = None  # DataFlash format multipliers, per column
+
+
+def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None,
+                 key: str) -> StreamSet:
+    """Every IMU, compass and thermometer message of an ArduPilot DataFlash log (``key``
+    "dataflash") or MAVLink telemetry log ("tlog") as streams; a message type ``keep`` rejects
+    (``IMU2``, ``SCALED_IMU``; ``IMU[1]`` for an instance field) is not decoded."""
+    name = FORMAT_NAMES[key]
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise ImucalError(f"cannot read the file: {err.strerror or err}", source=source) from None
+    digest = hashlib.sha256(data).hexdigest()
+    printed = io.StringIO()
+    try:
+        with _silenced(printed):
+            if key == "tlog":
+                found, present, reader_notes = _read_tlog(path, keep)
+                layouts = TLOG
+            else:
+                found, present, reader_notes = _read_dataflash(path, keep)
+                layouts = DATAFLASH
+    except ImucalError:
+        raise
+    except Exception as err:  # pymavlink raises what its parser meets: one line, no traceback
+        raise ImucalError(f"cannot read the {name}: {_one_line(err)}", source=source) from None
+    lines = _lines(printed)
+    bad = [s for s in lines if s.startswith("bad header")]
+    notes = [f"pymavlink: {s}" for s in lines if s not in bad][:3]
+    if bad:
+        notes.append(f"corrupt stretches: pymavlink skipped {plural(len(bad), 'byte')} that "
+                     "start no valid message")
+    notes.extend(reader_notes)
+    if not any(t.split("[")[0] in layouts for t in present):
+        listed = ", ".join(sorted(present)[:8]) + (
+            f" and {len(present) - 8} more" if len(present) > 8 else "")
+        raise ImucalError(f"no IMU or compass message ({', '.join(layouts)}) in the {name}; "
+                          f"it has {plural(len(present), 'message type')}"
+                          f"{': ' + listed if listed else ''}", source=source)
+    streams: list[Stream] = []
+    for instance, rows in found.items():
+        streams.extend(_streams(instance, layouts[instance.split("[")[0].split("@")[0]],
+                                rows, key, notes))
+    if not streams and keep is None:
+        raise ImucalError(f"the {name}'s IMU and compass messages hold no usable sample",
+                          source=source)
+    return StreamSet(source=source, format=name, streams=tuple(streams), sha256=digest,
+                     notes=tuple(notes))
+
+
+def _lines(printed: io.StringIO) -> list[str]:
+    return [s.strip() for s in printed.getvalue().splitlines() if s.strip()]
+
+
+@contextlib.contextmanager
+def _silenced(printed: io.StringIO):
+    """pymavlink reports what it skips by printing, from Python and from its compiled DataFlash
+    indexer (C, on file descriptor 1): both are caught here, for notes, instead of flooding the
+    user's terminal (one line per bad byte)."""
+    import os
+    import sys
+    import tempfile
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        try:
+            with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
+                yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            printed.write(sink.read().decode("utf-8", "replace"))
+
+
+def _read_dataflash(path: Path, keep: Callable[[str], bool] | None):
+    """pymavlink's DataFlash reader: the wanted message types, each message's unpacked values
+    collected (``DFMessage._elements``, with the format's multipliers applied per column
+    afterwards), split by the instance field ``I`` where the format has one."""
+    from pymavlink import DFReader
+
+    log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+    try:
+        present = {n for n, i in log.name_to_id.items() if log.counts[i] > 0}
+        wanted = [n for n in DATAFLASH if n in present]
+        formats = {n: log.formats[log.name_to_id[n]] for n in wanted}
+        # a type without an instance field is one stream set: ask keep before decoding it
+        wanted = [n for n in wanted if "I" in formats[n].colhash or keep is None or keep(n)]
+        found: dict[str, _Rows] = {}
+        notes: list[str] = []
+        by_type: dict[str, list] = {n: [] for n in wanted}
+        if wanted:
+            while (m := log.recv_match(type=set(wanted), strict=True)) is not None:
+                by_type[m.fmt.name].append(m._elements)
+        # where the last message pymavlink's index found ends, against the file's end
+        ends = [(log.offsets[i][-1] + log.formats[i].len, log.formats[i].name)
+                for i in range(256) if log.counts[i] > 0 and i in log.formats]
+        end, last = max(ends, default=(0, ""))
+        if end > log.data_len:
+            notes.append(f"truncated: the file ends inside its last message ({last}, at byte "
+                         f"{end - log.formats[log.name_to_id[last]].len}); read up to there")
+        elif 0 < end < log.data_len:
+            notes.append(f"{plural(log.data_len - end, 'byte')} after the last whole message "
+                         "start no message (the log may be cut short)")
+    finally:
+        log.filehandle.close()
+    for n, rows in by_type.items():
+        fmt = formats[n]
+        columns = dict(fmt.colhash)
+        mults = [m if m is not None else 1.0 for m in fmt.msg_mults]
+        if "I" not in columns:
+            found[n] = _Rows(columns, rows, mults)
+            continue
+        col = columns["I"]
+        for inst in sorted({r[col] for r in rows}):
+            label = f"{n}[{inst}]"
+            if keep is None or keep(label):
+                found[label] = _Rows(columns, [r for r in rows if r[col] == inst], mults)
+    return found, present, notes
+
+
+def _read_tlog(path: Path, keep: Callable[[str], bool] | None):
+    """pymavlink's telemetry-log reader (8-byte time, then a MAVLink 1 or 2 frame): the wanted
+    message types, each message's fields collected in order; a type sent by several
+    systems/components is one stream per sender (``SCALED_IMU@1/1``)."""
+    from pymavlink import mavutil
+
+    log = mavutil.mavlogfile(str(path), robust_parsing=True)
+    present: set[str] = set()
+    found: dict[str, _Rows] = {}
+    raw: dict[tuple[str, int, int], list] = {}
+    columns: dict[str, dict[str, int]] = {}
+    try:
+        while (m := log.recv_msg()) is not None:
+            t = m.get_type()
+            present.add(t)
+            if t not in TLOG:
+                continue
+            if t not in columns:
+                columns[t] = {c: i for i, c in enumerate(m.get_fieldnames())}
+                columns[t]["_receive"] = len(columns[t])
+            raw.setdefault((t, m.get_srcSystem(), m.get_srcComponent()), []).append(
+                [getattr(m, c) for c in m.get_fieldnames()] + [m._timestamp])
+    finally:
+        log.close()
+    senders: dict[str, int] = {}
+    for t, _, _ in raw:
+        senders[t] = senders.get(t, 0) + 1
+    for (t, sysid, compid), rows in raw.items():
+        label = t if senders[t] == 1 else f"{t}@{sysid}/{compid}"
+        if keep is None or keep(label):
+            found[label] = _Rows(columns[t], rows)
+    notes = []
+    if "BAD_DATA" in present:
+        present.discard("BAD_DATA")
+        notes.append("corrupt stretches: pymavlink found bytes that form no valid MAVLink "
+                     "message (skipped)")
+    return found, present, notes
+
+
+def _column(rows: _Rows, table: np.ndarray, name: str) -> np.ndarray:
+    i = rows.columns[name]
+    return table[:, i] * rows.mults[i] if rows.mults else table[:, i]
+
+
+def _streams(instance: str, layout: _Layout, rows: _Rows, key: str,
+             notes: list[str]) -> list[Stream]:
+    if not rows.rows:
+        return []
+    table = np.array(rows.rows, dtype=np.float64)  # one conversion per message type
+    clock = next((c for c in layout.clock if c in rows.columns), None)
+    if clock is None:
+        notes.append(f"{instance}: no clock column ({', '.join(layout.clock)}); not read")
+        return []
+    t = _column(rows, table, clock)
+    time_source = {"TimeUS": "TimeUS (µs since boot, when logged)",
+                   "SampleUS": "SampleUS (µs since boot, when sampled)",
+                   "time_boot_ms": "time_boot_ms (ms since boot)",
+                   "time_usec": "time_usec (µs since boot or Unix epoch, as the sender sets)"}[
+        clock]
+    local: list[str] = []
+    if key == "tlog" and not t.any():
+        t = table[:, rows.columns["_receive"]] / layout.clock_scale
+        time_source = "the tlog's receive time (the message's own time is zero)"
+        local.append(f"{instance}: {clock} is zero throughout; the tlog's receive time is used")
+    order = np.argsort(t, kind="stable")
+    if (np.diff(order) != 1).any():
+        local.append(f"{instance}: messages not in time order; sorted")
+    ts = t[order]
+    first = np.ones(len(ts), dtype=bool)
+    first[1:] = ts[1:] != ts[:-1]
+    if not first.all():
+        local.append(f"{instance}: {plural(int((~first).sum()), 'repeated stamp')} dropped "
+                     "(the first message of each stamp kept)")
+    order = order[first]
+    seconds = ts[first] * layout.clock_scale
+    notes.extend(local)
+    origin_base = f"{FORMAT_NAMES[key]} message {instance}"
+    kinds = {tr.kind for tr in layout.triads}
+    imu = instance if {"acc", "gyro"} <= kinds else _imu_of(instance)
+    out: list[Stream] = []
+    for triad in layout.triads:
+        if any(c not in rows.columns for c in triad.columns):
+            continue
+        values = np.column_stack([_column(rows, table, c) for c in triad.columns])[order]
+        if triad.scale != 1.0:
+            values = values / triad.scale
+        if triad.kind == "mag" and key == "tlog" and not values.any():
+            continue  # a sender without a compass fills zeros
+        out.append(Stream(triad.kind, instance, seconds, values, triad.unit,
+                          f"{origin_base}, fields {', '.join(triad.columns)}", AP_FRAME,
+                          time_source, None, imu if triad.kind != "mag" else None,
+                          tuple(x for x in (layout.note,) if x)))
+    if layout.temp and layout.temp[0] in rows.columns:
+        temp = _column(rows, table, layout.temp[0])[order] / layout.temp[1]
+        present = temp != 0 if layout.temp_zero_is_missing else np.isfinite(temp)
+        if present.any():
+            out.append(Stream("temp", instance, seconds[present], temp[present, None], "degC",
+                              f"{origin_base}, field {layout.temp[0]}", None, time_source,
+                              None, imu))
+    return out
+
+
+def _imu_of(instance: str) -> str:
+    """ACC[1] and GYR[1] (or ACC2 and GYR2) are one IMU's: both are named ``ACC[1]+GYR[1]``."""
+    for a, g in (("ACC", "GYR"), ("GYR", "ACC")):
+        if instance.startswith(a):
+            rest = instance[len(a):]
+            acc, gyr = (instance, g + rest) if a == "ACC" else (g + rest, instance)
+            return f"{acc}+{gyr}"
+    return instance
+
+
+def _one_line(err: BaseException) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 200 else text[:197] + "..."
