@@ -66,7 +66,7 @@ class _Layout:
 
     triads: tuple[_Triad, ...]
     clock: tuple[str, ...]  # clock columns, the first present wins
-    clock_scale: float  # to seconds
+    clock_units: float  # per second (divided by: a correctly rounded result)
     temp: tuple[str, float] | None = None  # (column, divide by)
     note: str = ""
     temp_zero_is_missing: bool = False
@@ -74,14 +74,14 @@ class _Layout:
 
 _IMU = _Layout((_Triad("acc", ("AccX", "AccY", "AccZ"), "m/s^2"),
                 _Triad("gyro", ("GyrX", "GyrY", "GyrZ"), "rad/s")),
-               ("TimeUS",), 1e-6, ("T", 1.0),
+               ("TimeUS",), 1e6, ("T", 1.0),
                f"{_CALIBRATED} and its low-pass filters (INS_ACCEL_FILTER, INS_GYRO_FILTER); "
                "one sample per logging loop")
 _ACC = _Layout((_Triad("acc", ("AccX", "AccY", "AccZ"), "m/s^2"),), ("SampleUS", "TimeUS"),
-               1e-6, None, f"every sensor sample; {_CALIBRATED}")
+               1e6, None, f"every sensor sample; {_CALIBRATED}")
 _GYR = _Layout((_Triad("gyro", ("GyrX", "GyrY", "GyrZ"), "rad/s"),), ("SampleUS", "TimeUS"),
-               1e-6, None, f"every sensor sample; {_CALIBRATED}")
-_MAG = _Layout((_Triad("mag", ("MagX", "MagY", "MagZ"), "mG"),), ("TimeUS",), 1e-6, None,
+               1e6, None, f"every sensor sample; {_CALIBRATED}")
+_MAG = _Layout((_Triad("mag", ("MagX", "MagY", "MagZ"), "mG"),), ("TimeUS",), 1e6, None,
                "ArduPilot's compass calibration already applied (offsets, logged beside as "
                "OfsX..Z; soft iron; motor compensation MOfsX..Z)")
 DATAFLASH = {"IMU": _IMU, "IMU2": _IMU, "IMU3": _IMU,
@@ -92,19 +92,19 @@ DATAFLASH = {"IMU": _IMU, "IMU2": _IMU, "IMU3": _IMU,
 _SCALED = _Layout((_Triad("acc", ("xacc", "yacc", "zacc"), "g", 1000.0),
                    _Triad("gyro", ("xgyro", "ygyro", "zgyro"), "rad/s", 1000.0),
                    _Triad("mag", ("xmag", "ymag", "zmag"), "mG")),
-                  ("time_boot_ms",), 1e-3, ("temperature", 100.0),
+                  ("time_boot_ms",), 1e3, ("temperature", 100.0),
                   "MAVLink's mg and mrad/s divided by 1000 (g, rad/s), cdegC by 100",
                   temp_zero_is_missing=True)
 _RAW = _Layout((_Triad("acc", ("xacc", "yacc", "zacc"), "counts"),
                 _Triad("gyro", ("xgyro", "ygyro", "zgyro"), "counts"),
                 _Triad("mag", ("xmag", "ymag", "zmag"), "counts")),
-               ("time_usec",), 1e-6, ("temperature", 100.0),
+               ("time_usec",), 1e6, ("temperature", 100.0),
                "MAVLink defines RAW_IMU as unscaled sensor values (ArduPilot sends mg, mrad/s "
                "and mgauss in it)", temp_zero_is_missing=True)
 _HIGHRES = _Layout((_Triad("acc", ("xacc", "yacc", "zacc"), "m/s^2"),
                     _Triad("gyro", ("xgyro", "ygyro", "zgyro"), "rad/s"),
                     _Triad("mag", ("xmag", "ymag", "zmag"), "gauss")),
-                   ("time_usec",), 1e-6, ("temperature", 1.0))
+                   ("time_usec",), 1e6, ("temperature", 1.0))
 TLOG = {"SCALED_IMU": _SCALED, "SCALED_IMU2": _SCALED, "SCALED_IMU3": _SCALED,
         "RAW_IMU": _RAW, "HIGHRES_IMU": _HIGHRES}
 
@@ -304,7 +304,7 @@ def _streams(instance: str, layout: _Layout, rows: _Rows, key: str,
         clock]
     local: list[str] = []
     if key == "tlog" and not t.any():
-        t = table[:, rows.columns["_receive"]] / layout.clock_scale
+        t = table[:, rows.columns["_receive"]] * layout.clock_units
         time_source = "the tlog's receive time (the message's own time is zero)"
         local.append(f"{instance}: {clock} is zero throughout; the tlog's receive time is used")
     order = np.argsort(t, kind="stable")
@@ -317,7 +317,7 @@ def _streams(instance: str, layout: _Layout, rows: _Rows, key: str,
         local.append(f"{instance}: {plural(int((~first).sum()), 'repeated stamp')} dropped "
                      "(the first message of each stamp kept)")
     order = order[first]
-    seconds = ts[first] * layout.clock_scale
+    seconds = ts[first] / layout.clock_units
     notes.extend(local)
     origin_base = f"{FORMAT_NAMES[key]} message {instance}"
     kinds = {tr.kind for tr in layout.triads}

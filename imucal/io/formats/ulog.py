@@ -68,8 +68,12 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None,
     if bytes(buf[:7]) != MAGIC:
         raise ImucalError("not a ULog: the file does not start with ULog's magic bytes",
                           source=source)
-    walked = _walk(buf, keep, source) if fast else None
-    topics, notes = walked or _read_with_pyulog(path, source, keep)
+    try:
+        topics, notes = _walk(buf, keep, source) if fast else _read_with_pyulog(path, source,
+                                                                                 keep)
+    except _Irregular as irregular:
+        topics, notes = _read_with_pyulog(path, source, keep)
+        notes.insert(0, f"{irregular}: read by pyulog's parser, which skips what it cannot read")
     streams = _streams(topics, notes)
     if not streams and keep is None:
         cut = next((n for n in notes if n.startswith("truncated")), None)
@@ -138,15 +142,19 @@ def _flat_dtype(name: str, formats: dict) -> np.dtype:
     return np.dtype(fields)
 
 
+class _Irregular(Exception):
+    """The file needs pyulog's recovering parser (a corrupt stretch, data appended after a
+    crash, a message id subscribed twice); the message says what was met."""
+
+
 def _walk(buf: np.ndarray, keep: Callable[[str], bool] | None, source: str):
-    """The wanted topics' records by the compiled walk, and notes; None where the file needs
-    pyulog's recovering parser (a corrupt stretch, data appended after a crash, a message id
-    subscribed twice)."""
+    """The wanted topics' records by the compiled walk, and notes."""
     from imucal.io.formats import ulog_scan
 
     offsets, stop, status = ulog_scan.message_offsets(buf, 16)
     if status == ulog_scan.IRREGULAR:
-        return None
+        raise _Irregular(f"a message header no ULog writer makes at byte {stop} (type "
+                         f"{int(buf[stop + 2])}, size {_size(buf, stop)})")
     notes: list[str] = []
     cut = (f"truncated: the file ends inside a message (byte {stop}, {len(buf) - stop} bytes of "
            "it present)") if status == ulog_scan.TRUNCATED else None
@@ -163,7 +171,8 @@ def _walk(buf: np.ndarray, keep: Callable[[str], bool] | None, source: str):
             raise ImucalError("the ULog sets an incompatible flag this reader does not know",
                               source=source)
         if int(incompat[0]) & 1:
-            return None
+            raise _Irregular("data appended after the log's end (the incompatible flag set "
+                             "after a crash)")
     formats = _Formats()
     for o in offsets[kinds == ord("F")].tolist():
         text = bytes(buf[o + 3:o + 3 + _size(buf, o)])
@@ -173,8 +182,8 @@ def _walk(buf: np.ndarray, keep: Callable[[str], bool] | None, source: str):
     for o in subs.tolist():
         payload = bytes(buf[o + 3:o + 3 + _size(buf, o)])
         msg_id = int.from_bytes(payload[1:3], "little")
-        if msg_id in subscribed:
-            return None  # an id reused after a removal: pyulog's rule (the last wins) applies
+        if msg_id in subscribed:  # reused after a removal: pyulog's rule (the last wins)
+            raise _Irregular(f"message id {msg_id} subscribed twice")
         subscribed[msg_id] = (payload[3:].split(b"\0")[0].decode("ascii", "replace"),
                               payload[0])
     data = offsets[kinds == ord("D")]
@@ -280,7 +289,7 @@ def _clock(topic: _Topic, t_us: np.ndarray, notes: list[str]):
         notes.append(f"{topic.instance}: {plural(int((~first).sum()), 'repeated stamp')} "
                      "dropped (the first sample of each stamp kept)")
     order = order[first]
-    return t_sorted[first].astype(np.float64) * 1e-6, order
+    return t_sorted[first].astype(np.float64) / 1e6, order  # division: correctly rounded
 
 
 def describe_device(device_id: int) -> str:
