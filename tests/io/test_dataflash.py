@@ -234,3 +234,86 @@ def test_tlog_keep_and_garbage(tmp_path):
     assert {x.name: x.samples for x in got.streams}["acc SCALED_IMU"] == 10
     assert "corrupt stretches: pymavlink found bytes that form no valid MAVLink message " \
            "(skipped)" in got.notes
+
+
+# --- newer DataFlash layouts: one message type, an instance field I ----------------------------
+
+_FORMATS = {  # id: (name, struct format, DataFlash format, columns), as ArduPilot 4.x logs them
+    200: ("IMU", "<QBffffffIIfBBHH", "QBffffffIIfBBHH",
+          "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
+    201: ("ACC", "<QBQfff", "QBQfff", "TimeUS,I,SampleUS,AccX,AccY,AccZ"),
+    202: ("GYR", "<QBQfff", "QBQfff", "TimeUS,I,SampleUS,GyrX,GyrY,GyrZ"),
+    203: ("MAG", "<QBhhhhhhhhhBI", "QBhhhhhhhhhBI",
+          "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ,Health,S"),
+}
+
+
+def _write_instanced_bin(path: Path, n: int = 20) -> None:
+    out = bytearray()
+    for mid, (name, st, fmt, cols) in _FORMATS.items():
+        out += b"\xa3\x95\x80" + struct.pack("<BB4s16s64s", mid, 3 + struct.calcsize(st),
+                                             name.encode(), fmt.encode(), cols.encode())
+    for k in range(n):
+        t = 1_000_000 + 2500 * k
+        for i in (0, 1):
+            g = (0.01 * k, -0.02 * i, 0.003)
+            a = (0.1 * i, 0.2, -9.8 + 0.001 * k)
+            out += b"\xa3\x95" + bytes([200]) + struct.pack(
+                "<QBffffffIIfBBHH", t, i, *g, *a, 0, 0, 30.0 + i + 0.01 * k, 1, 1, 1000, 1000)
+            for j in range(2):  # two raw samples per instance per step, sampled 1250 µs apart
+                out += b"\xa3\x95" + bytes([201]) + struct.pack(
+                    "<QBQfff", t + 7, i, t - 1250 * j, 0.5 * i, 0.25 * j, -9.75)
+                out += b"\xa3\x95" + bytes([202]) + struct.pack(
+                    "<QBQfff", t + 9, i, t - 1250 * j, 0.125 * j, 0.5 * i, 0.0)
+            if k % 4 == 0:
+                out += b"\xa3\x95" + bytes([203]) + struct.pack(
+                    "<QBhhhhhhhhhBI", t + 11, i, 200 + k, -100 * i, -500, 0, 0, 0, 0, 0, 0, 1,
+                    t)
+    path.write_bytes(bytes(out))
+
+
+def test_instance_field_splits_one_message_type(tmp_path):
+    path = tmp_path / "new.bin"
+    _write_instanced_bin(path)
+    got = read_streams(path, "dataflash", "new.bin")
+    s = {x.name: x for x in got.streams}
+    assert list(s) == ["acc IMU[0]", "gyro IMU[0]", "temp IMU[0]", "acc IMU[1]", "gyro IMU[1]",
+                       "temp IMU[1]", "acc ACC[0]", "acc ACC[1]", "gyro GYR[0]", "gyro GYR[1]",
+                       "mag MAG[0]", "mag MAG[1]"]
+    k = np.arange(20)
+    np.testing.assert_array_equal(s["acc IMU[1]"].t, (1_000_000 + 2500 * k) / 1e6)
+    np.testing.assert_array_equal(s["acc IMU[1]"].values[:, 2],
+                                  np.float32(-9.8 + 0.001 * k).astype(np.float64))
+    np.testing.assert_array_equal(s["temp IMU[1]"].values[:, 0],
+                                  np.float32(31.0 + 0.01 * k).astype(np.float64))
+    assert s["acc IMU[0]"].imu == s["gyro IMU[0]"].imu == "IMU[0]"
+    # ACC and GYR: every sample, on SampleUS (when sampled), 800 Hz here
+    acc = s["acc ACC[1]"]
+    assert acc.samples == 40 and acc.time_source.startswith("SampleUS")
+    assert acc.rate == pytest.approx(800.0)
+    assert acc.t[0] == (1_000_000 - 1250) / 1e6
+    np.testing.assert_array_equal(acc.values[:2], [[0.5, 0.25, -9.75], [0.5, 0.0, -9.75]])
+    assert acc.imu == s["gyro GYR[1]"].imu == "ACC[1]+GYR[1]"
+    assert s["mag MAG[1]"].values[0].tolist() == [200.0, -100.0, -500.0]
+    assert s["mag MAG[0]"].samples == 5
+    only = read_streams(path, "dataflash", "new.bin", keep=lambda inst: inst == "GYR[0]")
+    assert [x.name for x in only.streams] == ["gyro GYR[0]"]
+
+
+def test_tlog_two_senders_of_one_message_are_two_streams(tmp_path):
+    from pymavlink.dialects.v20 import common as dialect
+
+    path = tmp_path / "two.tlog"
+    with path.open("wb") as f:
+        for k in range(10):
+            for sysid in (1, 2):
+                mav = dialect.MAVLink(None, srcSystem=sysid, srcComponent=1)
+                m = mav.highres_imu_encode(10_000 * k, 0.0, 0.0, -9.81 * sysid, 0.0, 0.0, 0.0,
+                                           0.2, 0.0, 0.4, 1013.0, 0.0, 0.0, 20.0, 0x1FFF, 0)
+                f.write(struct.pack(">Q", 1_700_000_000_000_000 + 10_000 * k + sysid)
+                        + m.pack(mav))
+    got = read_streams(path, "tlog", "two.tlog")
+    acc = {x.instance: x for x in got.of_kind("acc")}
+    assert sorted(acc) == ["HIGHRES_IMU@1/1", "HIGHRES_IMU@2/1"]
+    assert acc["HIGHRES_IMU@2/1"].values[0, 2] == np.float64(np.float32(-19.62))
+    assert acc["HIGHRES_IMU@1/1"].samples == 10

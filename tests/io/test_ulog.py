@@ -202,3 +202,13 @@ def test_readers_import_their_libraries_only_when_reading():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, timeout=60)
     assert out.stdout.strip() == "[]"
+
+
+def test_topic_in_an_unknown_layout_is_a_note_not_a_crash():
+    t = np.array([1_000_000, 2_000_000], dtype=np.uint64)
+    old = ulog_reader._Topic("sensor_gyro", 0, {"timestamp": t, "x": np.zeros(2),
+                                                 "y": np.zeros(2)})
+    notes: list[str] = []
+    assert ulog_reader._streams([old], notes) == []
+    assert notes == ["sensor_gyro:0: no field z (a PX4 layout this reader does not know); "
+                     "not read"]

@@ -53,6 +53,12 @@ _INVALID_RELATIVE = 0x7FFFFFFF  # sensor_combined.RELATIVE_TIMESTAMP_INVALID
 _TYPES = {"int8_t": "<i1", "uint8_t": "<u1", "int16_t": "<i2", "uint16_t": "<u2",
           "int32_t": "<i4", "uint32_t": "<u4", "int64_t": "<i8", "uint64_t": "<u8",
           "float": "<f4", "double": "<f8", "bool": "<i1", "char": "<i1"}
+# The fields each topic's streams are made of.
+_XYZ = ("x", "y", "z")
+_NEEDED = {"sensor_accel": _XYZ, "sensor_gyro": _XYZ, "sensor_mag": _XYZ,
+           "sensor_combined": ("gyro_rad[0]", "gyro_rad[1]", "gyro_rad[2]",
+                               "accelerometer_timestamp_relative", "accelerometer_m_s2[0]",
+                               "accelerometer_m_s2[1]", "accelerometer_m_s2[2]")}
 _BUS_TYPES = {0: "unknown bus", 1: "I2C", 2: "SPI", 3: "UAVCAN", 4: "simulation", 5: "serial",
               6: "MAVLink"}
 
@@ -302,15 +308,15 @@ def describe_device(device_id: int) -> str:
             f"{bus}, address {address:#04x}, devtype {devtype:#04x})")
 
 
-def _device(topic: _Topic, notes: list[str]) -> tuple[str | None, int | None]:
+def _device(topic: _Topic, notes: list[str]) -> str | None:
     ids = topic.fields.get("device_id")
     if ids is None or not len(ids):
-        return None, None
+        return None
     unique = np.unique(ids)
     if len(unique) > 1:
         notes.append(f"{topic.instance}: device_id changes within the log "
                      f"({', '.join(hex(int(u)) for u in unique)}); the first is named")
-    return describe_device(int(ids[0])), int(ids[0])
+    return describe_device(int(ids[0]))
 
 
 def _triad(topic: _Topic, names: tuple[str, str, str]) -> np.ndarray:
@@ -359,19 +365,23 @@ def _streams(topics: list[_Topic], notes: list[str]) -> list[Stream]:
         f = topic.fields
         if not len(f.get("timestamp", ())):
             continue
+        missing = [n for n in _NEEDED[topic.name] if n not in f]
+        if missing:
+            notes.append(f"{topic.instance}: no field {', '.join(missing)} (a PX4 layout this "
+                         "reader does not know); not read")
+            continue
         local: list[str] = []
         if topic.name == "sensor_combined":
-            streams.extend(_combined(topic, local))
-            notes.extend(local)
+            streams.extend(_combined(topic))
             continue
         kind, unit = {"sensor_accel": ("acc", "m/s^2"), "sensor_gyro": ("gyro", "rad/s"),
                       "sensor_mag": ("mag", "gauss")}[topic.name]
         stamp = "timestamp_sample" if "timestamp_sample" in f else "timestamp"
         t, order = _clock(topic, f[stamp], local)
-        device, dev_id = _device(topic, local)
+        device = _device(topic, local)
         origin = f"ULog topic {topic.name}, multi-instance {topic.multi_id}, fields x, y, z"
         time_source = f"{stamp} (µs since boot)"
-        values = _triad(topic, ("x", "y", "z"))[order]
+        values = _triad(topic, _XYZ)[order]
         streams.append(Stream(kind, topic.instance, t, values, unit, origin, BOARD_FRAME,
                               time_source, device, imu.get(topic.instance),
                               notes=tuple(local)))
@@ -398,7 +408,7 @@ def _streams(topics: list[_Topic], notes: list[str]) -> list[Stream]:
     return streams
 
 
-def _combined(topic: _Topic, notes: list[str]) -> list[Stream]:
+def _combined(topic: _Topic) -> list[Stream]:
     f = topic.fields
     out: list[Stream] = []
     origin = "ULog topic sensor_combined (PX4's selected IMU, calibrated by PX4)"
