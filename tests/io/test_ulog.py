@@ -146,6 +146,8 @@ def test_truncated_log_is_read_to_the_cut_and_says_so(ulg, tmp_path):
     (16, "the file holds a ULog header and no message"),
     (20_000, "truncated: the file ends inside a message (byte 19992, 8 bytes of it present), "
              "before any sensor topic is logged"),
+    (62_000, "truncated: the file ends inside a message (byte 61989, 11 bytes of it present), "
+             "before any sensor sample"),
 ])
 def test_log_cut_before_sensor_data_is_refused(ulg, tmp_path, size, expected):
     cut = tmp_path / "cut.ulg"

@@ -33,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,7 +71,7 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None,
     (``sensor_accel:1``, ``sensor_combined``) are decoded. ``fast=False`` reads with pyulog
     alone (the reference the compiled walk is tested against)."""
     buf = _map(path, source)
-    digest = hashlib.sha256(buf).hexdigest()  # hashlib releases the GIL over the whole buffer
+    digest = hashlib.sha256(buf).hexdigest()
     if bytes(buf[:7]) != MAGIC:
         raise ImucalError("not a ULog: the file does not start with ULog's magic bytes",
                           source=source)
@@ -82,9 +83,10 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None,
         notes.insert(0, f"{irregular}: read by pyulog's parser, which skips what it cannot read")
     streams = _streams(topics, notes)
     if not streams and keep is None:
-        cut = next((n for n in notes if n.startswith("truncated")), None)
-        raise ImucalError(f"{cut or 'the log subscribes sensor topics but'} "
-                          f"{'and ' if cut else ''}holds no sensor sample", source=source)
+        cut = next((n.split(";")[0] for n in notes if n.startswith("truncated")), None)
+        raise ImucalError(f"{cut}, before any sensor sample" if cut else
+                          "the log subscribes sensor topics but holds no sensor sample",
+                          source=source)
     return StreamSet(source=source, format=FORMAT_NAME, streams=tuple(streams), sha256=digest,
                      notes=tuple(notes))
 
@@ -102,12 +104,6 @@ def _map(path: Path, source: str) -> np.ndarray:
         return np.memmap(path, dtype=np.uint8, mode="r").view(np.ndarray)
     except OSError as err:
         raise ImucalError(f"cannot read the file: {err.strerror or err}", source=source) from None
-
-
-def struct_error() -> type[BaseException]:
-    import struct
-
-    return struct.error
 
 
 def _printed(printed: io.StringIO, notes: list[str]) -> None:
@@ -162,8 +158,9 @@ def _walk(buf: np.ndarray, keep: Callable[[str], bool] | None, source: str):
         raise _Irregular(f"a message header no ULog writer makes at byte {stop} (type "
                          f"{int(buf[stop + 2])}, size {_size(buf, stop)})")
     notes: list[str] = []
-    cut = (f"truncated: the file ends inside a message (byte {stop}, {len(buf) - stop} bytes of "
-           "it present)") if status == ulog_scan.TRUNCATED else None
+    cut = (f"truncated: the file ends inside a message (byte {stop}, "
+           f"{plural(len(buf) - stop, 'byte')} of it present)"
+           if status == ulog_scan.TRUNCATED else None)
     if cut:
         notes.append(cut + "; read up to there")
     if not len(offsets):
@@ -255,7 +252,7 @@ def _read_with_pyulog(path: Path, source: str, keep: Callable[[str], bool] | Non
     try:
         with contextlib.redirect_stdout(printed):
             log = ULog(str(path), message_name_filter_list=list(SENSOR_TOPICS))
-    except (ULogException, UnicodeDecodeError, ValueError, struct_error()) as err:
+    except (ULogException, UnicodeDecodeError, ValueError, struct.error) as err:
         raise ImucalError(f"not a readable ULog: {_one_line(err)}", source=source) from None
     notes: list[str] = []
     _printed(printed, notes)
