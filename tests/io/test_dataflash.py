@@ -239,7 +239,8 @@ def test_tlog_keep_and_garbage(tmp_path):
 # --- newer DataFlash layouts: one message type, an instance field I ----------------------------
 
 _FORMATS = {  # id: (name, struct format, DataFlash format, columns), as ArduPilot 4.x logs them
-    200: ("IMU", "<QBffffffIIfBBHH", "QBffffffIIfBBHH",
+    # T as "c": int16 centidegrees, which DataFlash's format char scales by 0.01
+    200: ("IMU", "<QBffffffIIhBBHH", "QBffffffIIcBBHH",
           "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
     201: ("ACC", "<QBQfff", "QBQfff", "TimeUS,I,SampleUS,AccX,AccY,AccZ"),
     202: ("GYR", "<QBQfff", "QBQfff", "TimeUS,I,SampleUS,GyrX,GyrY,GyrZ"),
@@ -259,7 +260,7 @@ def _write_instanced_bin(path: Path, n: int = 20) -> None:
             g = (0.01 * k, -0.02 * i, 0.003)
             a = (0.1 * i, 0.2, -9.8 + 0.001 * k)
             out += b"\xa3\x95" + bytes([200]) + struct.pack(
-                "<QBffffffIIfBBHH", t, i, *g, *a, 0, 0, 30.0 + i + 0.01 * k, 1, 1, 1000, 1000)
+                "<QBffffffIIhBBHH", t, i, *g, *a, 0, 0, 3000 + 100 * i + k, 1, 1, 1000, 1000)
             for j in range(2):  # two raw samples per instance per step, sampled 1250 µs apart
                 out += b"\xa3\x95" + bytes([201]) + struct.pack(
                     "<QBQfff", t + 7, i, t - 1250 * j, 0.5 * i, 0.25 * j, -9.75)
@@ -284,8 +285,7 @@ def test_instance_field_splits_one_message_type(tmp_path):
     np.testing.assert_array_equal(s["acc IMU[1]"].t, (1_000_000 + 2500 * k) / 1e6)
     np.testing.assert_array_equal(s["acc IMU[1]"].values[:, 2],
                                   np.float32(-9.8 + 0.001 * k).astype(np.float64))
-    np.testing.assert_array_equal(s["temp IMU[1]"].values[:, 0],
-                                  np.float32(31.0 + 0.01 * k).astype(np.float64))
+    np.testing.assert_array_equal(s["temp IMU[1]"].values[:, 0], (3100 + k) / 100)
     assert s["acc IMU[0]"].imu == s["gyro IMU[0]"].imu == "IMU[0]"
     # ACC and GYR: every sample, on SampleUS (when sampled), 800 Hz here
     acc = s["acc ACC[1]"]

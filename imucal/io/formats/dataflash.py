@@ -36,7 +36,7 @@ import contextlib
 import hashlib
 import io
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -111,11 +111,27 @@ TLOG = {"SCALED_IMU": _SCALED, "SCALED_IMU2": _SCALED, "SCALED_IMU3": _SCALED,
 
 @dataclass
 class _Rows:
-    """One message type's (or instance's) values as pymavlink decoded them."""
+    """One message type's (or instance's) numeric values as pymavlink decoded them: one row a
+    message, ``columns`` naming the table's columns."""
 
     columns: dict[str, int]
-    rows: list = field(default_factory=list)
-    mults: list[float] | None = None  # DataFlash format multipliers, per column
+    table: np.ndarray
+
+
+def _table(rows: list, columns: dict[str, int], wanted: set[str]) -> _Rows:
+    """The ``wanted`` columns of ``rows`` (lists of decoded values) as one float64 array: the
+    one conversion of a message type's values (other columns may hold text)."""
+    keep = sorted(c for c in wanted if c in columns)
+    idx = [columns[c] for c in keep]
+    if not rows:
+        return _Rows({c: j for j, c in enumerate(keep)}, np.empty((0, len(keep))))
+    table = np.array(rows, dtype=object)[:, idx].astype(np.float64)
+    return _Rows({c: j for j, c in enumerate(keep)}, table)
+
+
+def _needed(layout: _Layout) -> set[str]:
+    cols = {c for tr in layout.triads for c in tr.columns} | set(layout.clock) | {"I"}
+    return cols | ({layout.temp[0]} if layout.temp else set())
 
 
 def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None,
@@ -199,8 +215,9 @@ def _silenced(printed: io.StringIO):
 
 def _read_dataflash(path: Path, keep: Callable[[str], bool] | None):
     """pymavlink's DataFlash reader: the wanted message types, each message's unpacked values
-    collected (``DFMessage._elements``, with the format's multipliers applied per column
-    afterwards), split by the instance field ``I`` where the format has one."""
+    collected (``DFMessage._elements``), made one array per type, the format's multipliers
+    applied per column as pymavlink applies them, split by the instance field ``I`` where the
+    format has one."""
     from pymavlink import DFReader
 
     log = DFReader.DFReader_binary(str(path), zero_time_base=False)
@@ -230,16 +247,20 @@ def _read_dataflash(path: Path, keep: Callable[[str], bool] | None):
         log.filehandle.close()
     for n, rows in by_type.items():
         fmt = formats[n]
-        columns = dict(fmt.colhash)
-        mults = [m if m is not None else 1.0 for m in fmt.msg_mults]
-        if "I" not in columns:
-            found[n] = _Rows(columns, rows, mults)
+        got = _table(rows, dict(fmt.colhash), _needed(DATAFLASH[n]))
+        for c, j in got.columns.items():
+            mult = fmt.msg_mults[fmt.colhash[c]]
+            if mult is not None:  # as pymavlink's DFMessage applies it: 0.01 as / 100
+                got.table[:, j] = (got.table[:, j] / (1 / mult) if 0 < mult < 1 else
+                                   got.table[:, j] * mult)
+        if "I" not in got.columns:
+            found[n] = got
             continue
-        col = columns["I"]
-        for inst in sorted({r[col] for r in rows}):
+        inst_col = got.table[:, got.columns["I"]]
+        for inst in np.unique(inst_col).astype(int).tolist():
             label = f"{n}[{inst}]"
             if keep is None or keep(label):
-                found[label] = _Rows(columns, [r for r in rows if r[col] == inst], mults)
+                found[label] = _Rows(got.columns, got.table[inst_col == inst])
     return found, present, notes
 
 
@@ -273,7 +294,7 @@ def _read_tlog(path: Path, keep: Callable[[str], bool] | None):
     for (t, sysid, compid), rows in raw.items():
         label = t if senders[t] == 1 else f"{t}@{sysid}/{compid}"
         if keep is None or keep(label):
-            found[label] = _Rows(columns[t], rows)
+            found[label] = _table(rows, columns[t], _needed(TLOG[t]) | {"_receive"})
     notes = []
     if "BAD_DATA" in present:
         present.discard("BAD_DATA")
@@ -282,21 +303,16 @@ def _read_tlog(path: Path, keep: Callable[[str], bool] | None):
     return found, present, notes
 
 
-def _column(rows: _Rows, table: np.ndarray, name: str) -> np.ndarray:
-    i = rows.columns[name]
-    return table[:, i] * rows.mults[i] if rows.mults else table[:, i]
-
-
 def _streams(instance: str, layout: _Layout, rows: _Rows, key: str,
              notes: list[str]) -> list[Stream]:
-    if not rows.rows:
+    if not len(rows.table):
         return []
-    table = np.array(rows.rows, dtype=np.float64)  # one conversion per message type
+    table = rows.table
     clock = next((c for c in layout.clock if c in rows.columns), None)
     if clock is None:
         notes.append(f"{instance}: no clock column ({', '.join(layout.clock)}); not read")
         return []
-    t = _column(rows, table, clock)
+    t = table[:, rows.columns[clock]]
     time_source = {"TimeUS": "TimeUS (µs since boot, when logged)",
                    "SampleUS": "SampleUS (µs since boot, when sampled)",
                    "time_boot_ms": "time_boot_ms (ms since boot)",
@@ -326,7 +342,7 @@ def _streams(instance: str, layout: _Layout, rows: _Rows, key: str,
     for triad in layout.triads:
         if any(c not in rows.columns for c in triad.columns):
             continue
-        values = np.column_stack([_column(rows, table, c) for c in triad.columns])[order]
+        values = table[:, [rows.columns[c] for c in triad.columns]][order]
         if triad.scale != 1.0:
             values = values / triad.scale
         if triad.kind == "mag" and key == "tlog" and not values.any():
@@ -336,7 +352,7 @@ def _streams(instance: str, layout: _Layout, rows: _Rows, key: str,
                           time_source, None, imu if triad.kind != "mag" else None,
                           tuple(x for x in (layout.note,) if x)))
     if layout.temp and layout.temp[0] in rows.columns:
-        temp = _column(rows, table, layout.temp[0])[order] / layout.temp[1]
+        temp = table[order, rows.columns[layout.temp[0]]] / layout.temp[1]
         present = temp != 0 if layout.temp_zero_is_missing else np.isfinite(temp)
         if present.any():
             out.append(Stream("temp", instance, seconds[present], temp[present, None], "degC",
