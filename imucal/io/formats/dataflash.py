@@ -35,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -186,24 +187,34 @@ def _lines(printed: io.StringIO) -> list[str]:
     return [s.strip() for s in printed.getvalue().splitlines() if s.strip()]
 
 
+_FD_LOCK = threading.Lock()  # one redirection of the process's descriptors at a time
+
+
 @contextlib.contextmanager
 def _silenced(printed: io.StringIO):
     """pymavlink reports what it skips by printing, from Python and from its compiled DataFlash
     indexer (C, on file descriptor 1): both are caught here, for notes, instead of flooding the
-    user's terminal (one line per bad byte)."""
+    user's terminal (one line per bad byte). The descriptors are the process's: readers in
+    several threads take turns (a lock), and where they cannot be duplicated (closed), only
+    Python's printing is caught."""
     import os
     import sys
     import tempfile
 
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    with tempfile.TemporaryFile() as sink:
+    for stream in (sys.stdout, sys.stderr):  # what Python holds for the real descriptors
+        if stream is not None:
+            stream.flush()
+    with _FD_LOCK, tempfile.TemporaryFile() as sink, \
+            contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
+        try:
+            saved = [os.dup(1), os.dup(2)]
+        except OSError:
+            yield
+            return
         os.dup2(sink.fileno(), 1)
         os.dup2(sink.fileno(), 2)
         try:
-            with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
-                yield
+            yield
         finally:
             os.dup2(saved[0], 1)
             os.dup2(saved[1], 2)
