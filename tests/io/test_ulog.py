@@ -214,3 +214,16 @@ def test_topic_in_an_unknown_layout_is_a_note_not_a_crash():
     assert ulog_reader._streams([old], notes) == []
     assert notes == ["sensor_gyro:0: no field z (a PX4 layout this reader does not know); "
                      "not read"]
+
+
+def test_older_px4_layout_says_the_driver_calibrated():
+    t = np.array([1_000_000, 2_000_000], dtype=np.uint64)
+    old = ulog_reader._Topic("sensor_accel", 0, {"timestamp": t, "integral_dt": t,
+                                                  "x": np.zeros(2), "y": np.zeros(2),
+                                                  "z": np.array([-9.8, -9.7])})
+    (acc,) = ulog_reader._streams([old], [])
+    assert acc.time_source == "timestamp (µs since boot)"  # no timestamp_sample in that layout
+    np.testing.assert_array_equal(acc.t, [1.0, 2.0])
+    assert acc.values[:, 2].tolist() == [-9.8, -9.7]
+    assert acc.notes == ("sensor_accel:0: an older PX4 layout (x_raw/integral_dt), whose driver "
+                         "applied PX4's calibration (CAL_ACCn/CAL_GYROn) already",)

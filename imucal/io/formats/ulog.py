@@ -8,7 +8,9 @@ What PX4 logs, and what it means (PX4-Autopilot ``msg/*.msg`` and ``src/lib/driv
   (``PX4Accelerometer::update`` calls ``rotate_3f(_rotation, ...)`` and scales), *before* any
   calibration (offsets, scales, thermal correction) and before the board-to-vehicle rotation
   ``SENS_BOARD_ROT`` (``calibration::Accelerometer::Correct`` applies those downstream). The
-  message definition says "FRD board frame". This is the raw signal a calibration wants.
+  message definition says "FRD board frame". This is the raw signal a calibration wants. (Older
+  PX4, whose sensor_accel also carries ``x_raw`` or ``integral_dt``, applied its calibration
+  in the driver: a stream of that layout says so in a note.)
   ``temperature`` (deg C) is the chip's; ``device_id`` names the chip (bus type, bus, address,
   device type).
 - ``sensor_mag`` (gauss), likewise in the board frame (an external compass: its own mount,
@@ -379,6 +381,9 @@ def _streams(topics: list[_Topic], notes: list[str]) -> list[Stream]:
         origin = f"ULog topic {topic.name}, multi-instance {topic.multi_id}, fields x, y, z"
         time_source = f"{stamp} (µs since boot)"
         values = _triad(topic, _XYZ)[order]
+        if topic.name != "sensor_mag" and ("x_raw" in f or "integral_dt" in f):
+            local.append(f"{topic.instance}: an older PX4 layout (x_raw/integral_dt), whose "
+                         "driver applied PX4's calibration (CAL_ACCn/CAL_GYROn) already")
         streams.append(Stream(kind, topic.instance, t, values, unit, origin, BOARD_FRAME,
                               time_source, device, imu.get(topic.instance),
                               notes=tuple(local)))
