@@ -123,7 +123,12 @@ def measure(path: Path, repeat: int, tmp: Path) -> dict:
 
     ulog.read_streams(path, path.name, None)  # warm: numba's import and cache load done
     fast, streams = _best(lambda: ulog.read_streams(path, path.name, None), repeat)
-    slow, _ = _best(lambda: ulog.read_streams(path, path.name, None, fast=False), repeat)
+    slow, reference = _best(lambda: ulog.read_streams(path, path.name, None, fast=False),
+                            repeat)
+    for a, b in zip(streams.streams, reference.streams, strict=True):  # the same arrays
+        if a.name != b.name or not (np.array_equal(a.t, b.t)
+                                    and np.array_equal(a.values, b.values)):
+            raise SystemExit(f"{path.name}: {a.name} differs between the two paths")
     raw, _ = _best(lambda: ULog(str(path), message_name_filter_list=list(ulog.SENSOR_TOPICS)),
                    repeat)
     files = []
