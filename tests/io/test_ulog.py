@@ -74,6 +74,14 @@ def test_shared_log_streams_named_counted_and_hashed(ulg, streams, reference):
     assert s["mag sensor_mag:1"].device == "0x90c09 (I2C bus 1, address 0x0c, devtype 0x09)"
     # one chip, one thermometer: the gyroscopes' copies are not repeated
     assert sum("temperature identical" in n for n in streams.notes) == 3
+    # the logger's dropout messages, as pyulog counts them
+    from pyulog import ULog
+
+    drops = ULog(str(ulg)).dropouts
+    assert streams.notes[0] == (f"the logger dropped data {len(drops)} time "
+                                f"({sum(d.duration for d in drops)} ms in all): every topic has "
+                                "gaps there") == ("the logger dropped data 1 time (30 ms in "
+                                                  "all): every topic has gaps there")
 
 
 def test_values_and_times_are_pyulogs(streams, reference):

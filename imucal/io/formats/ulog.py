@@ -178,6 +178,11 @@ def _walk(buf: np.ndarray, keep: Callable[[str], bool] | None, source: str):
         if int(incompat[0]) & 1:
             raise _Irregular("data appended after the log's end (the incompatible flag set "
                              "after a crash)")
+    drops = offsets[kinds == ord("O")]
+    if len(drops):  # dropout messages: the logger lost data for uint16 duration ms each
+        lost = int((buf[drops + 3].astype(np.int64) | buf[drops + 4].astype(np.int64) << 8).sum())
+        notes.append(f"the logger dropped data {plural(len(drops), 'time')} ({lost} ms in all): "
+                     "every topic has gaps there")
     formats = _Formats()
     for o in offsets[kinds == ord("F")].tolist():
         text = bytes(buf[o + 3:o + 3 + _size(buf, o)])
@@ -258,6 +263,10 @@ def _read_with_pyulog(path: Path, source: str, keep: Callable[[str], bool] | Non
         raise ImucalError(f"not a readable ULog: {_one_line(err)}", source=source) from None
     notes: list[str] = []
     _printed(printed, notes)
+    if log.dropouts:
+        notes.append(f"the logger dropped data {plural(len(log.dropouts), 'time')} "
+                     f"({sum(d.duration for d in log.dropouts)} ms in all): every topic has gaps "
+                     "there")
     if log.file_corruption:
         notes.append("corrupt stretches: read by pyulog, which skips to the next sync marker")
     topics = [_Topic(d.name, d.multi_id, dict(d.data)) for d in log.data_list]
