@@ -249,11 +249,31 @@ _FORMATS = {  # id: (name, struct format, DataFlash format, columns), as ArduPil
 }
 
 
-def _write_instanced_bin(path: Path, n: int = 20) -> None:
+# ArduPilot's unit and multiplier tables (UNIT, MULT) and each format's units (FMTU): what
+# pymavlink reads a column's unit from in newer logs.
+_META = {210: ("UNIT", "<QbZ", "QbZ", "TimeUS,Id,Label"),
+         211: ("MULT", "<Qbd", "Qbd", "TimeUS,Id,Mult"),
+         212: ("FMTU", "<QBNN", "QBNN", "TimeUS,FmtType,UnitIds,MultIds")}
+_UNIT_IDS = {200: ("s#EEEooo--O----", "F-------------"),
+             201: ("s#sooo", "F-F---"), 202: ("s#sEEE", "F-F---"),
+             203: ("s#GGGGGGGGG-s", "F-CCCCCCCCC-F")}
+
+
+def _write_instanced_bin(path: Path, n: int = 20, mag_unit: str = "G") -> None:
     out = bytearray()
-    for mid, (name, st, fmt, cols) in _FORMATS.items():
+    for mid, (name, st, fmt, cols) in {**_FORMATS, **_META}.items():
+        st = st.replace("Z", "64s").replace("N", "16s")
         out += b"\xa3\x95\x80" + struct.pack("<BB4s16s64s", mid, 3 + struct.calcsize(st),
                                              name.encode(), fmt.encode(), cols.encode())
+    for uid, label in (("s", "s"), ("#", "instance"), ("E", "rad/s"), ("o", "m/s/s"),
+                       ("O", "degC"), ("G", "Gauss"), ("-", "")):
+        out += b"\xa3\x95" + bytes([210]) + struct.pack("<Qb64s", 0, ord(uid), label.encode())
+    for mid_, mult in (("-", 0.0), ("F", 1e-6), ("C", 1e-3)):
+        out += b"\xa3\x95" + bytes([211]) + struct.pack("<Qbd", 0, ord(mid_), mult)
+    for mid, (units, mults) in _UNIT_IDS.items():
+        units = units.replace("G", mag_unit, 1) if mid == 203 else units
+        out += b"\xa3\x95" + bytes([212]) + struct.pack("<QB16s16s", 0, mid, units.encode(),
+                                                         mults.encode())
     for k in range(n):
         t = 1_000_000 + 2500 * k
         for i in (0, 1):
@@ -261,7 +281,7 @@ def _write_instanced_bin(path: Path, n: int = 20) -> None:
             a = (0.1 * i, 0.2, -9.8 + 0.001 * k)
             out += b"\xa3\x95" + bytes([200]) + struct.pack(
                 "<QBffffffIIhBBHH", t, i, *g, *a, 0, 0, 3000 + 100 * i + k, 1, 1, 1000, 1000)
-            for j in range(2):  # two raw samples per instance per step, sampled 1250 µs apart
+            for j in (1, 0):  # two raw samples per instance per step, sampled 1250 µs apart
                 out += b"\xa3\x95" + bytes([201]) + struct.pack(
                     "<QBQfff", t + 7, i, t - 1250 * j, 0.5 * i, 0.25 * j, -9.75)
                 out += b"\xa3\x95" + bytes([202]) + struct.pack(
@@ -298,6 +318,37 @@ def test_instance_field_splits_one_message_type(tmp_path):
     assert s["mag MAG[0]"].samples == 5
     only = read_streams(path, "dataflash", "new.bin", keep=lambda inst: inst == "GYR[0]")
     assert [x.name for x in only.streams] == ["gyro GYR[0]"]
+    assert got.notes == ()  # the log's units (FMTU) are the ones assumed
+    _same_both_ways(path)
+
+
+def test_a_unit_the_log_states_otherwise_is_said(tmp_path):
+    path = tmp_path / "odd_unit.bin"
+    _write_instanced_bin(path, mag_unit="o")  # MagX in m/s/s: a log that contradicts itself
+    got = read_streams(path, "dataflash", "odd_unit.bin")
+    assert got.notes == ("MAG: the log states MagX in 'mm/s/s'; read as 'mGauss' (ArduPilot's "
+                         "unit for it)",)
+
+
+def _same_both_ways(path: Path) -> None:
+    """The records decoded from pymavlink's index equal pymavlink's own decoding, message by
+    message (``recv_match``)."""
+    fast = df_reader.read_streams(path, path.name, None, "dataflash")
+    slow = df_reader.read_streams(path, path.name, None, "dataflash", fast=False)
+    assert [s.name for s in fast.streams] == [s.name for s in slow.streams]
+    assert fast.notes == slow.notes
+    for a, b in zip(fast.streams, slow.streams):
+        np.testing.assert_array_equal(a.t, b.t)
+        np.testing.assert_array_equal(a.values, b.values)
+
+
+def test_indexed_decoding_equals_pymavlinks(bin_path, tmp_path):
+    _same_both_ways(bin_path)
+    data = bin_path.read_bytes()
+    for name, cut in (("cut.bin", data[:40_001]),
+                      ("zeros.bin", data[:30_000] + b"\0" * 2000 + data[32_000:])):
+        (tmp_path / name).write_bytes(cut)
+        _same_both_ways(tmp_path / name)
 
 
 def test_tlog_two_senders_of_one_message_are_two_streams(tmp_path):

@@ -136,10 +136,11 @@ def _needed(layout: _Layout) -> set[str]:
 
 
 def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None,
-                 key: str) -> StreamSet:
+                 key: str, *, fast: bool = True) -> StreamSet:
     """Every IMU, compass and thermometer message of an ArduPilot DataFlash log (``key``
     "dataflash") or MAVLink telemetry log ("tlog") as streams; a message type ``keep`` rejects
-    (``IMU2``, ``SCALED_IMU``; ``IMU[1]`` for an instance field) is not decoded."""
+    (``IMU2``, ``SCALED_IMU``; ``IMU[1]`` for an instance field) is not decoded.
+    ``fast=False`` decodes DataFlash messages one by one with pymavlink (the reference)."""
     name = FORMAT_NAMES[key]
     try:
         data = path.read_bytes()
@@ -153,7 +154,7 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None,
                 found, present, reader_notes = _read_tlog(path, keep)
                 layouts = TLOG
             else:
-                found, present, reader_notes = _read_dataflash(path, keep)
+                found, present, reader_notes = _read_dataflash(path, keep, fast)
                 layouts = DATAFLASH
     except ImucalError:
         raise
@@ -224,11 +225,13 @@ def _silenced(printed: io.StringIO):
             printed.write(sink.read().decode("utf-8", "replace"))
 
 
-def _read_dataflash(path: Path, keep: Callable[[str], bool] | None):
-    """pymavlink's DataFlash reader: the wanted message types, each message's unpacked values
-    collected (``DFMessage._elements``), made one array per type, the format's multipliers
-    applied per column as pymavlink applies them, split by the instance field ``I`` where the
-    format has one."""
+def _read_dataflash(path: Path, keep: Callable[[str], bool] | None, fast: bool = True):
+    """pymavlink's DataFlash reader: its index of where each message type's messages lie
+    (``DFReader_binary.offsets``, built by its compiled indexer), then the wanted types decoded
+    from those offsets as numpy records of the type's ``FMT`` layout (``fast``), or message by
+    message with ``recv_match`` (``fast=False``, the reference); one array per type, the
+    format's multipliers applied per column as pymavlink applies them, split by the instance
+    field ``I`` where the format has one."""
     from pymavlink import DFReader
 
     log = DFReader.DFReader_binary(str(path), zero_time_base=False)
@@ -238,12 +241,16 @@ def _read_dataflash(path: Path, keep: Callable[[str], bool] | None):
         formats = {n: log.formats[log.name_to_id[n]] for n in wanted}
         # a type without an instance field is one stream set: ask keep before decoding it
         wanted = [n for n in wanted if "I" in formats[n].colhash or keep is None or keep(n)]
-        found: dict[str, _Rows] = {}
         notes: list[str] = []
-        by_type: dict[str, list] = {n: [] for n in wanted}
-        if wanted:
-            while (m := log.recv_match(type=set(wanted), strict=True)) is not None:
+        tables = {n: _decode_indexed(log, formats[n]) for n in wanted} if fast else {}
+        slow = [n for n in wanted if tables.get(n) is None]
+        by_type: dict[str, list] = {n: [] for n in slow}
+        if slow:
+            log.rewind()
+            while (m := log.recv_match(type=set(slow), strict=True)) is not None:
                 by_type[m.fmt.name].append(m._elements)
+        for n, rows in by_type.items():
+            tables[n] = _table(rows, dict(formats[n].colhash), _needed(DATAFLASH[n]))
         # where the last message pymavlink's index found ends, against the file's end
         ends = [(log.offsets[i][-1] + log.formats[i].len, log.formats[i].name)
                 for i in range(256) if log.counts[i] > 0 and i in log.formats]
@@ -256,9 +263,10 @@ def _read_dataflash(path: Path, keep: Callable[[str], bool] | None):
                          "start no message (the log may be cut short)")
     finally:
         log.filehandle.close()
-    for n, rows in by_type.items():
-        fmt = formats[n]
-        got = _table(rows, dict(fmt.colhash), _needed(DATAFLASH[n]))
+    found: dict[str, _Rows] = {}
+    for n in wanted:
+        fmt, got = formats[n], tables[n]
+        notes.extend(_unit_check(n, fmt))
         for c, j in got.columns.items():
             mult = fmt.msg_mults[fmt.colhash[c]]
             if mult is not None:  # as pymavlink's DFMessage applies it: 0.01 as / 100
@@ -273,6 +281,69 @@ def _read_dataflash(path: Path, keep: Callable[[str], bool] | None):
             if keep is None or keep(label):
                 found[label] = _Rows(got.columns, got.table[inst_col == inst])
     return found, present, notes
+
+
+_STRUCT_NP = {"Q": "<u8", "q": "<i8", "d": "<f8", "f": "<f4", "e": "<f2", "I": "<u4",
+              "i": "<i4", "H": "<u2", "h": "<i2", "B": "u1", "b": "i1"}
+_CHUNK = 1 << 16  # messages gathered at once (an index array of 8 bytes per byte copied)
+
+
+def _record_dtype(fmt) -> np.dtype | None:
+    """The packed numpy record of a DataFlash format (``DFFormat.msg_struct``), columns named
+    ``c0``, ``c1``, ...; None for a layout numpy cannot view (arrays, odd lengths)."""
+    import re
+
+    tokens = re.findall(r"(\d*)([A-Za-z?])", fmt.msg_struct.lstrip("<"))
+    fields = []
+    for i, (count, char) in enumerate(tokens):
+        if char == "s":
+            fields.append((f"c{i}", f"S{count or 1}"))
+        elif char in _STRUCT_NP and not count:
+            fields.append((f"c{i}", _STRUCT_NP[char]))
+        else:
+            return None
+    dtype = np.dtype(fields)
+    return dtype if dtype.itemsize == fmt.len - 3 and len(fields) == len(fmt.columns) else None
+
+
+def _decode_indexed(log, fmt) -> _Rows | None:
+    """The needed columns of every message of ``fmt`` that pymavlink's index lists and the
+    file holds whole, without a Python step per message."""
+    dtype = _record_dtype(fmt)
+    if dtype is None:
+        return None
+    offsets = np.asarray(log.offsets[fmt.type], dtype=np.int64)
+    offsets = offsets[offsets + fmt.len <= log.data_len]  # a cut last message: as recv_match
+    data = np.frombuffer(log.data_map, dtype=np.uint8)
+    width = fmt.len - 3
+    raw = np.empty((len(offsets), width), dtype=np.uint8)
+    step = np.arange(width)
+    for a in range(0, len(offsets), _CHUNK):
+        raw[a:a + _CHUNK] = data[(offsets[a:a + _CHUNK] + 3)[:, None] + step]
+    del data  # the mmap stays closable
+    records = raw.view(dtype).ravel()
+    keep = sorted(c for c in _needed(DATAFLASH[fmt.name]) if c in fmt.colhash)
+    table = np.empty((len(records), len(keep)))
+    for j, c in enumerate(keep):
+        table[:, j] = records[f"c{fmt.colhash[c]}"]
+    return _Rows({c: j for j, c in enumerate(keep)}, table)
+
+
+# The units ArduPilot's FMTU states for the columns read (pymavlink's unit names, the
+# multiplier's prefix included), where a log has FMTU messages.
+_FMTU_UNITS = {"AccX": "m/s/s", "GyrX": "rad/s", "MagX": "mGauss", "T": "degC"}
+
+
+def _unit_check(name: str, fmt) -> list[str]:
+    """A note where the log's own unit for a column read differs from the one assumed."""
+    if not fmt.units:
+        return []
+    out = []
+    for col, unit in _FMTU_UNITS.items():
+        if col in fmt.colhash and fmt.units[fmt.colhash[col]] not in ("", unit):
+            out.append(f"{name}: the log states {col} in {fmt.units[fmt.colhash[col]]!r}; "
+                       f"read as {unit!r} (ArduPilot's unit for it)")
+    return out
 
 
 def _read_tlog(path: Path, keep: Callable[[str], bool] | None):
