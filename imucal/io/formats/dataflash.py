@@ -234,7 +234,15 @@ def _read_dataflash(path: Path, keep: Callable[[str], bool] | None, fast: bool =
     field ``I`` where the format has one."""
     from pymavlink import DFReader
 
-    log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+    class Reader(DFReader.DFReader_binary):
+        def init_clock(self) -> None:
+            """The streams keep the log's own TimeUS/SampleUS: pymavlink's search for a GPS
+            time base (every message decoded, in Python, when the GPS has no fix, as on a
+            bench) is not needed; its microsecond clock is set instead."""
+            self._rewind(keep_messages=True)
+            self.init_clock_usec()
+
+    log = Reader(str(path), zero_time_base=True)
     try:
         present = {n for n, i in log.name_to_id.items() if log.counts[i] > 0}
         wanted = [n for n in DATAFLASH if n in present]
