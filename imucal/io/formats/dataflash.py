@@ -26,8 +26,11 @@ MAVLink (common.xml), the message's own clock (``time_usec`` µs or ``time_boot_
   the scaled mg, mrad/s and mgauss values here too; the loader's unit guess decides).
 - ``HIGHRES_IMU``: m/s^2, rad/s, gauss, deg C.
 
-pymavlink decodes message by message in Python; each message's values are collected as
-pymavlink unpacked them and turned into one array per message type.
+DataFlash: pymavlink's compiled indexer finds where every message lies; the wanted types are
+then viewed as numpy records of their FMT layout at those offsets (equal, column for column, to
+pymavlink's own message-by-message decoding, which ``fast=False`` uses). MAVLink: pymavlink
+decodes the telemetry log message by message in Python (tlogs are telemetry rates); the values
+are collected and made one array per message type.
 """
 
 from __future__ import annotations
