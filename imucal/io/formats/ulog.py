@@ -23,11 +23,12 @@ What PX4 logs, and what it means (PX4-Autopilot ``msg/*.msg`` and ``src/lib/driv
 Clock: ``timestamp_sample`` (when the chip sampled) where the topic has it, else
 ``timestamp`` (when PX4 published); both microseconds since boot, here in seconds.
 
-The walk: pyulog parses the definitions section (formats, info, flags: ``parse_header_only``);
-the data section's messages are found by one compiled pass and the wanted topics' payloads
-copied out and viewed as records of the topic's layout, so the cost is the file's bytes, not a
-Python step per message. A file the walk finds irregular (an unknown message type, data appended
-after a crash) is read by pyulog itself, which recovers at sync markers, message by message.
+The walk: one compiled pass finds every message of the file; the wanted topics' format
+definitions are parsed by pyulog (``ULog.MessageFormat``), their subscriptions read, and their
+data messages' payloads copied out and viewed as records of the topic's layout, so the cost is
+the file's bytes, not a Python step per message. A file the walk finds irregular (an unknown
+message type, data appended after a crash) is read by pyulog itself, which recovers at sync
+markers, message by message (``fast=False`` reads every file that way).
 """
 
 from __future__ import annotations
@@ -211,7 +212,12 @@ def _walk(buf: np.ndarray, keep: Callable[[str], bool] | None, source: str):
         if name not in formats:
             notes.append(f"{topic.instance}: no format definition; not read")
             continue
-        dtype = _flat_dtype(name, formats)
+        try:
+            dtype = _flat_dtype(name, formats)
+        except (KeyError, ValueError, IndexError, TypeError):
+            notes.append(f"{topic.instance}: its format definition is incomplete or corrupt; "
+                         "not read")
+            continue
         mine = ids == msg_id
         # pyulog keeps a record whose payload is exactly the format's size (after its msg_id)
         # and counts any other as corrupt: the same rule, so both readings agree.
