@@ -64,7 +64,7 @@ class FitSection:
 
 @dataclass(frozen=True)
 class SegmentSection:
-    index: int
+    number: int  # from 1, as everywhere (:attr:`imucal.result.Segment.number`)
     span: str  # "0.0-179.7 s, 36 blocks, 30 orientations"
     fits: tuple[FitSection, ...]  # the accelerometer's, then the gyroscope's if any
 
@@ -147,7 +147,7 @@ def _segment(result: Result, seg: Segment) -> SegmentSection:
         fits.append(_gyro(seg.gyro, result.session.gyro_unit))
     span = (f"{seg.t_start:.1f}-{seg.t_end:.1f} s, {seg.n_blocks} blocks, "
             f"{seg.orientations} orientations")
-    return SegmentSection(index=seg.index, span=span, fits=tuple(fits))
+    return SegmentSection(number=seg.number, span=span, fits=tuple(fits))
 
 
 def _acc(fit: AccFit, unit: str, raw: str) -> FitSection:

@@ -23,7 +23,7 @@ def log_results(result: Result, rec: rr.RecordingStream) -> None:
     s, q = result.session, result.quality
     for seg in result.segments:
         a = seg.acc
-        rec.log(P.calibration(seg.index, "accelerometer"), rr.AnyValues(
+        rec.log(P.calibration(seg.number, "accelerometer"), rr.AnyValues(
             T=a.model.T.ravel(), K=a.model.K, b=a.model.b, params=a.params, std=a.std,
             param_names=list(ACC_PARAM_NAMES), **{"lambda": float(a.lam)},
             t_start=float(seg.t_start), t_end=float(seg.t_end), start=a.report.start_name,
@@ -32,7 +32,7 @@ def log_results(result: Result, rec: rr.RecordingStream) -> None:
             orientations=int(seg.orientations)), static=True)
         g = seg.gyro
         if g is not None:
-            rec.log(P.calibration(seg.index, "gyroscope"), rr.AnyValues(
+            rec.log(P.calibration(seg.number, "gyroscope"), rr.AnyValues(
                 T=g.model.T.ravel(), K=g.model.K, b=g.model.b, params=g.params,
                 std=g.std, param_names=list(g.param_names), **{"lambda": float(g.lam)},
                 bias_source=g.bias_source, nominal_scale=float(g.nominal_scale),
@@ -86,7 +86,7 @@ def report_markdown(rep: Report) -> str:
         lines += ["## Guide to the recording", ""]
         lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.guide] + [""]
     for seg in rep.segments:
-        lines += [f"## Segment {seg.index}: {seg.span}", ""]
+        lines += [f"## Segment {seg.number}: {seg.span}", ""]
         for fit in seg.fits:
             lines += [f"### {fit.sensor.capitalize()}: {fit.model}", "",
                       "| parameter | value | std. error |", "|---|---:|---:|"]

@@ -11,7 +11,7 @@ if TYPE_CHECKING:
 SHORT = {"accelerometer": "acc", "gyroscope": "gyro"}
 
 
-def summary_lines(rep: Report) -> list[str]:
+def summary_lines(rep: Report, verbose: bool = False) -> list[str]:
     from imucal.report import fmt
 
     lines = [f"{line.label:16s}{line.text}" for line in rep.overview]
@@ -22,7 +22,7 @@ def summary_lines(rep: Report) -> list[str]:
         lines.append(f"{row.label:28s}{fmt(row.figure.before, '.3g'):>10s}"
                      f"{fmt(row.figure.after, '.3g'):>10s}{held:>10s}  ({row.note})")
     for seg in rep.segments:
-        lines.append(f"{'segment ' + str(seg.index):16s}{seg.span}")
+        lines.append(f"{'segment ' + str(seg.number):16s}{seg.span}")
         for fit in seg.fits:
             mis = " ".join(n.split("_")[1] for n in fit.names("misalignment"))
             lines.append(f"  {SHORT[fit.sensor]:6s}scale {_vec(fit.values('scale'))}  "
@@ -45,7 +45,8 @@ def _vec(values, spec: str = ".6g") -> str:
     return " ".join(fmt(v, spec) for v in values)
 
 
-def print_summary(result: Result, written: list[str]) -> None:
+def print_summary(result: Result, written: list[str], verbose: bool = False) -> None:
     from imucal.report import report
 
-    print("\n".join(summary_lines(report(result)) + [f"wrote {w}" for w in written]))
+    print("\n".join(summary_lines(report(result), verbose=verbose)
+                    + [f"wrote {w}" for w in written]))
