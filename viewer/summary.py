@@ -10,7 +10,7 @@ import numpy as np
 import rerun as rr
 
 from imucal.models import ACC_PARAM_NAMES
-from imucal.report import Report, fmt, report
+from imucal.report import HELD_OUT_NOTE, Report, fmt, report
 
 from . import paths as P
 from .columns import nan_if_none
@@ -70,6 +70,9 @@ def summary_markdown(result: Result) -> str:
 
 def report_markdown(rep: Report) -> str:
     lines = [f"# IMU calibration: {rep.title}", ""]
+    # The verdict first (Overview and Summary tabs show this document from its top).
+    lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.verdict]
+    lines += [""] if rep.verdict else []
     lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.overview]
     lines += ["", "## Quality", "", "| figure | before | after | held out |",
               "|---|---:|---:|---:|"]
@@ -79,7 +82,8 @@ def report_markdown(rep: Report) -> str:
                      f"{fmt(row.figure.after, '.4g')} | {held} |")
     # What each figure measures, under the table: a narrow panel (the Overview's) then still
     # shows the numbers instead of cutting the table at its long first column.
-    lines += ["", "; ".join(f"*{row.label}*: {row.note}" for row in rep.quality), ""]
+    lines += ["", "; ".join(f"*{row.label}*: {row.note}" for row in rep.quality)
+              + f"; *{HELD_OUT_NOTE}*", ""]
     lines += [f"- {n}" for n in rep.quality_notes]
     lines.append("")
     if rep.guide:
@@ -93,8 +97,14 @@ def report_markdown(rep: Report) -> str:
             for p in fit.params:
                 label = f"{p.name} ({p.unit})" if p.unit else p.name
                 lines.append(f"| {label} | {fmt(p.value)} | {fmt(p.std, '.2g')} |")
-            lines += ["", fit.details, ""]
+            lines.append("")
     lines += ["## Warnings", ""]
     lines += [f"- {w.text}" for w in rep.warnings] or ["none"]
+    lines.append("")
+    # The method's own terms last, out of a first reader's way (the CLI's -v).
+    lines += ["## Method details", ""]
+    lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.details]
+    for seg in rep.segments:
+        lines += [f"- **Segment {seg.number}, {fit.sensor}:** {fit.details}" for fit in seg.fits]
     lines.append("")
     return "\n".join(lines)

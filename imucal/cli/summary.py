@@ -1,4 +1,7 @@
-"""The lines ``imucal calibrate`` prints about a run: :mod:`imucal.report` as plain text."""
+"""The lines ``imucal calibrate`` prints about a run: :mod:`imucal.report` as plain text.
+
+The verdict first, then the run in plain words; the method's own terms (the detector's
+window, the grouping's test, the L-curve, the fits' costs) only with ``-v``."""
 
 from __future__ import annotations
 
@@ -12,15 +15,18 @@ SHORT = {"accelerometer": "acc", "gyroscope": "gyro"}
 
 
 def summary_lines(rep: Report, verbose: bool = False) -> list[str]:
-    from imucal.report import fmt
+    from imucal.report import HELD_OUT_NOTE, fmt
 
-    lines = [f"{line.label:16s}{line.text}" for line in rep.overview]
-    # "held out": each still block / turn predicted by a fit that did not see it (§5)
+    lines = [f"{line.label:16s}{line.text}" for line in rep.verdict]
+    lines += [f"{line.label:16s}{line.text}" for line in rep.overview]
+    if verbose:
+        lines += [f"{line.label:16s}{line.text}" for line in rep.details]
     lines.append(f"{'':28s}{'before':>10s}{'after':>10s}{'held out':>10s}")
     for row in rep.quality:
         held = "" if row.held_out is None else fmt(row.held_out, '.3g')
         lines.append(f"{row.label:28s}{fmt(row.figure.before, '.3g'):>10s}"
                      f"{fmt(row.figure.after, '.3g'):>10s}{held:>10s}  ({row.note})")
+    lines.append(f"{'':16s}({HELD_OUT_NOTE})")
     for seg in rep.segments:
         lines.append(f"{'segment ' + str(seg.number):16s}{seg.span}")
         for fit in seg.fits:
@@ -28,7 +34,8 @@ def summary_lines(rep: Report, verbose: bool = False) -> list[str]:
             lines.append(f"  {SHORT[fit.sensor]:6s}scale {_vec(fit.values('scale'))}  "
                          f"misalign({mis}) {_vec(fit.values('misalignment'), '.3g')}  "
                          f"bias {_vec(fit.values('bias'))} {fit.raw_unit}")
-            lines.append(f"{'':8s}{fit.details}")
+            if verbose:
+                lines.append(f"{'':8s}{fit.details}")
     if rep.guide:
         lines.append("guide to the recording:")
         lines += [f"  {line.label:14s}{line.text}" for line in rep.guide]

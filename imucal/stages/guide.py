@@ -111,6 +111,7 @@ class TurnGuide:
     fast: np.ndarray  # (K,) bool: peak_rate above rate_limit
     small: np.ndarray  # (K,) bool: tilt below min_tilt_deg
     saturated: np.ndarray  # (K,) bool: left out of the gyroscope fit (clipped samples)
+    limit_brief: str = ""  # rate_limit's source in a few plain words, for the sentence
 
 
 @dataclass(frozen=True)
@@ -254,15 +255,16 @@ def _turns(session: Session, block_times: np.ndarray, u: np.ndarray,
         saturated[b0:b0 + n] = fit.excluded
     full, full_src = gyro_full_scale(session, gyro_fits[0][1])
     step_limit = np.radians(MAX_STEP_DEG) * float(session.gyro_rate)
-    limit, src = step_limit, (f"{MAX_STEP_DEG:g} deg per sample at {session.gyro_rate:.4g} Hz, "
-                              "what M5's integration carries without visible error")
+    brief = f"{MAX_STEP_DEG:g} deg per sample at {session.gyro_rate:.4g} Hz"
+    limit, src = step_limit, f"{brief}, what M5's integration carries without visible error"
     if full is not None and FULL_SCALE_FRACTION * full < step_limit:
         limit = FULL_SCALE_FRACTION * full
+        brief = f"{FULL_SCALE_FRACTION:.0%} of the gyroscope's full scale"
         src = f"{FULL_SCALE_FRACTION:.0%} of the full scale, {full_src}"
     return TurnGuide(times=np.column_stack([t[s], t[e]]), angle_deg=angle, tilt_deg=tilt,
                      peak_rate=peak, rate_limit=float(limit), limit_source=src, full_scale=full,
                      full_scale_source=full_src, min_tilt_deg=MIN_TILT_DEG, fast=peak > limit,
-                     small=tilt < MIN_TILT_DEG, saturated=saturated)
+                     small=tilt < MIN_TILT_DEG, saturated=saturated, limit_brief=brief)
 
 
 def gyro_full_scale(session: Session, fit: GyroFit) -> tuple[float | None, str]:
@@ -358,8 +360,10 @@ def _judge_turns(turns: TurnGuide, strong: list[str], weak: list[str], todo: lis
     K = len(turns.peak_rate)
     if K == 0:
         return
-    turn = (f"{K} turns, peak rate up to {turns.peak_rate.max():.3g} rad/s against a limit "
-            f"of {turns.rate_limit:.3g} rad/s ({turns.limit_source})")
+    # In plain words; the limit's full source (M5's integration, the clipping level) is in
+    # calib.json's guide.turn_rate_limit_source and the viewer's guide info.
+    turn = (f"{K} turns, the fastest at {turns.peak_rate.max():.3g} rad/s against a limit "
+            f"of {turns.rate_limit:.3g} rad/s ({turns.limit_brief or turns.limit_source})")
     n_fast, n_small, n_sat = (int(turns.fast.sum()), int(turns.small.sum()),
                               int(turns.saturated.sum()))
     if n_fast or n_sat:

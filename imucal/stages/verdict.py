@@ -31,12 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from imucal.stages.accel_cv import AccCrossValidation, axis_words
-from imucal.stages.guide import (
-    GOOD_COVERAGE,
-    MIN_TILT_DEG,
-    ORIENTATIONS_NEEDED,
-    Guide,
-)
+from imucal.stages.guide import MIN_TILT_DEG, ORIENTATIONS_NEEDED, Guide
 from imucal.stages.gyro import OVERFIT_RATIO as GYRO_OVERFIT_RATIO
 from imucal.stages.gyro import GyroFit
 
@@ -260,15 +255,15 @@ def _gyroscope(seg: SegmentFigures, guide: Guide | None,
 
 
 def _recording(guide: Guide, segments: Sequence[SegmentFigures]) -> list[Finding]:
-    """What the guide finds that weighs on the result itself (holds and small turns only
-    weaken the next recording's advice: the blocks and turns that counted were fine)."""
+    """What the guide finds that weighs on the result itself. Holds and small turns only
+    shape the next recording's advice (the blocks and turns that counted were fine); so does
+    a sphere not quite covered (below GOOD_COVERAGE) where the poses determine every
+    parameter: the held-out error already says how well the fit reaches poses it did not
+    see (a synthetic session with 24 orientations and 93.5 % coverage: 0.2 mg held out).
+    Turns faster than the limit or through clipped samples weigh: the integration (M5) of
+    the first is off, the second are left out of the fit."""
     out = []
-    p, t = guide.poses, guide.turns
-    if p.coverage < GOOD_COVERAGE:
-        out.append(Finding("coverage", CAVEATS,
-                           f"the poses leave {100 * (1 - p.coverage):.0f} % of directions "
-                           "without a pose near them: the calibration is extrapolated there",
-                           _poses_next(guide, p.orientations)))
+    t = guide.turns
     n_fast, n_sat = int(t.fast.sum()), int(t.saturated.sum())
     if n_fast or n_sat:
         what = ", ".join(x for x in (f"{n_fast} faster than {t.rate_limit:.3g} rad/s"
