@@ -123,7 +123,7 @@ def judge(segments: Sequence[SegmentFigures], guide: Guide | None) -> Verdict:
         if seg.gyro is not None:
             findings += _gyroscope(seg, guide, figures)
     if guide is not None:
-        findings += _recording(guide, segments)
+        findings += _recording(guide)
     if not findings:
         return Verdict(GOOD, _good_reason(figures), "none: the calibration is ready to use",
                        GOOD, (), figures)
@@ -254,7 +254,7 @@ def _gyroscope(seg: SegmentFigures, guide: Guide | None,
     return []
 
 
-def _recording(guide: Guide, segments: Sequence[SegmentFigures]) -> list[Finding]:
+def _recording(guide: Guide) -> list[Finding]:
     """What the guide finds that weighs on the result itself. Holds and small turns only
     shape the next recording's advice (the blocks and turns that counted were fine); so does
     a sphere not quite covered (below GOOD_COVERAGE) where the poses determine every
