@@ -61,6 +61,10 @@ def test_a_useless_calibration_is_refused_unless_allowed(shared_data, tmp_path):
     verdict = json.loads((tmp_path / "f.json").read_text())["verdict"]
     assert verdict["level"] == "not usable" and verdict["code"] == "acc_held_out"
     assert out[0] == f"{'verdict':16s}not usable: {verdict['reason']}"
+    # Exported anyway, the verdict is said again where the parameters leave imucal.
+    proc = run("export", "f.json", "--to", "px4", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[0] == out[0]
 
 
 def test_the_sample_says_good_first_and_keeps_the_method_behind_v(tmp_path):
@@ -73,6 +77,8 @@ def test_the_sample_says_good_first_and_keeps_the_method_behind_v(tmp_path):
         assert term not in proc.stdout, term
     calib = json.loads((tmp_path / "c.json").read_text())
     assert calib["verdict"]["level"] == "good"
+    proc = run("export", "c.json", "--to", "px4", cwd=tmp_path)
+    assert proc.stdout.startswith("export          px4: c.json")  # good: nothing to add
     # The details: with -v, and in calib.json whatever is printed.
     verbose = run("calibrate", SAMPLE, "--out", "v.json", "-v", cwd=tmp_path).stdout
     assert "L-curve corner, point " in verbose and "Bonferroni" in verbose
