@@ -26,7 +26,7 @@ from imucal.numerics.directions import DISTINCT_ANGLE_DEG, distinct_orientations
 from imucal.session import Session
 from imucal.stages.accel_cv import COVERAGE_ANGLE_DEG, axis_words, coverage
 from imucal.stages.detect import Detection
-from imucal.stages.gyro import GyroFit, small_turns_text
+from imucal.stages.gyro import MAX_STEP_DEG, GyroFit, small_turns_text
 from imucal.stages.gyro_transitions import angle_between, transition_samples
 from imucal.stages.quality import row_norms
 from imucal.stages.saturation import CHUNK_ROWS, axis_saturated_runs
@@ -48,12 +48,6 @@ TIMES_LISTED = 6
 # Peak rate limit where the full scale is known: this fraction of it leaves a margin before
 # the gyroscope clips (a clipped turn is left out of the fit, method.md §4).
 FULL_SCALE_FRACTION = 0.8
-# Rotation per gyroscope sample M5's integrator (RK4, the rate at a half step the mean of the
-# neighbours) carries without visible error. Measured with imucal.synth turns (minimum jerk,
-# true model, no noise): the gravity prediction error at 100 Hz is 0.0009 deg median at 8 deg
-# per sample, 0.005 at 12.6 and 0.07 at 31 (140 Hz: 0.0018 deg at 9 deg per sample); 10 deg per
-# sample keeps it near 0.01 deg, far below a good fit's 0.05-0.1 deg.
-MAX_STEP_DEG = 10.0
 ORIENTATIONS_NEEDED = 9  # M2 has 9 parameters (method.md §3)
 # Coverage called strong: a stray test direction or two at the meeting of three caps leaves no
 # parameter undetermined (the suggestion still names the pose that would reach them).

@@ -324,3 +324,27 @@ def test_calibration_file_holds_the_verdict(whole_sphere, tmp_path):
     assert d["record_next"] == list(g.record_next) and d["strong"] == list(g.strong)
     assert d["turn_rate_limit_rad_s"] == pytest.approx(g.turns.rate_limit)
     assert d["gyro_full_scale_rad_s"] is None and d["orientations"] == g.poses.orientations
+
+
+def test_a_turn_too_fast_for_the_integration_is_one_idea_too():
+    """The guide's rate limit (10 deg per sample, where the full scale is unknown) and the
+    gyroscope fit's warning on fast rotations are the same threshold: one turn at about 13 deg
+    per sample is flagged by both, the others by neither."""
+    rng = np.random.default_rng(7)
+    ups = _random_ups(14, rng)
+    _, motion = _session(ups, np.r_[5.0, np.full(13, 3.0)], np.full(13, 2.0), seed=7)
+    moves = np.maximum(1.875 * motion.angle / 1.5, 1.0)  # peaks of 1.5 rad/s at most
+    moves[6] = 1.875 * motion.angle[6] / 23.0  # 23 rad/s at 100 Hz: 13 deg per sample
+    session, _ = _session(ups, np.r_[5.0, np.full(13, 3.0)], moves, seed=7)
+    result = imucal.calibrate(session)
+    t = result.guide.turns
+    assert t.rate_limit == pytest.approx(np.radians(10.0) * RATE)
+    assert np.flatnonzero(t.fast).tolist() == [6]
+    fast = [w for w in result.warnings if w.code == "gyro_rotations_fast"]
+    assert len(fast) == 1 and "loses accuracy above about 10" in fast[0].message
+    v = result.verdict  # and the verdict weighs it: the fit rests on the other turns
+    assert v.level != "good" and "turns_too_fast" in {v.code, *(c.code for c in v.caveats)}
+    calm, _ = _session(ups, np.r_[5.0, np.full(13, 3.0)], np.maximum(moves, 1.0), seed=7)
+    calm_result = imucal.calibrate(calm)
+    assert not calm_result.guide.turns.fast.any()
+    assert not any(w.code == "gyro_rotations_fast" for w in calm_result.warnings)
