@@ -98,8 +98,9 @@ def test_the_first_screen_is_the_verdict_then_plain_words(sample):
     plain = summary_lines(rep)
     assert plain[0] == f"{'verdict':16s}{sample.verdict.text}"
     assert plain[1] == f"{'next step':16s}{sample.verdict.next_step}"
-    assert plain[0].startswith("verdict         good: still poses it did not see read |g| "
-                               f"within {sample.quality.static_norm_cv_mg:.2g} mg")
+    assert plain[0] == ("verdict         good: still poses the fit did not see are off by "
+                        f"{sample.quality.static_norm_cv_mg:.2g} mg; turns it did not see end "
+                        f"{sample.quality.gravity_angle_cv_deg:.2g} deg off the measured gravity")
     for line in plain:
         for term in METHOD_TERMS:
             assert term not in line, (term, line)

@@ -152,10 +152,11 @@ def with_spec(verdict: Verdict, check: dict, source: str) -> Verdict:
 def _good_reason(figures: dict[str, float | None]) -> str:
     acc = figures.get("acc_held_out_mg")
     gyro = figures.get("gravity_held_out_deg")
-    parts = [f"still poses it did not see read |g| within {acc:.2g} mg"] if acc is not None \
-        else []
+    # The same words as a finding's, with the figures that passed (RMS over the poses/turns).
+    parts = ([f"still poses the fit did not see are off by {acc:.2g} mg"] if acc is not None
+             else [])
     if gyro is not None:
-        parts.append(f"turns it did not see are carried within {gyro:.2g} deg")
+        parts.append(f"turns it did not see end {gyro:.2g} deg off the measured gravity")
     return "; ".join(parts) or "every check passed"
 
 

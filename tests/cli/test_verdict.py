@@ -71,7 +71,7 @@ def test_the_sample_says_good_first_and_keeps_the_method_behind_v(tmp_path):
     proc = run("calibrate", SAMPLE, "--out", "c.json", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout.splitlines()
-    assert out[0].startswith("verdict         good: still poses it did not see read |g| within ")
+    assert out[0].startswith("verdict         good: still poses the fit did not see are off by ")
     assert out[1] == "next step       none: the calibration is ready to use"
     for term in ("window 101", "Bonferroni", "L-curve", "cost reached", "M5", "M1"):
         assert term not in proc.stdout, term
