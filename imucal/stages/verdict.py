@@ -150,8 +150,13 @@ def with_spec(verdict: Verdict, check: dict, source: str) -> Verdict:
 
 
 def _good_reason(figures: dict[str, float | None]) -> str:
-    acc = figures.get("acc_held_out_mg")
-    gyro = figures.get("gravity_held_out_deg")
+    """The held-out figures that passed: the worst segment's where there are several."""
+    def worst(name: str) -> float | None:
+        found = [v for k, v in figures.items()
+                 if k.endswith(name) and v is not None and np.isfinite(v)]
+        return max(found) if found else None
+
+    acc, gyro = worst("acc_held_out_mg"), worst("gravity_held_out_deg")
     # The same words as a finding's, with the figures that passed (RMS over the poses/turns).
     parts = ([f"still poses the fit did not see are off by {acc:.2g} mg"] if acc is not None
              else [])

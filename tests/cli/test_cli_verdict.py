@@ -121,6 +121,7 @@ def test_segments_are_numbered_alike_in_the_summary_the_file_and_export(two):
     """What calibrate prints as segment N is what export --segment N writes; without
     --segment a one-model export is refused with the segments and their times."""
     d, summary = two
+    assert summary.startswith("verdict         good: still poses the fit did not see are off by ")
     printed = {int(n): (a, b) for n, a, b in
                re.findall(r"^segment (\d+) +(\d+\.\d)-(\d+\.\d) s", summary, re.M)}
     assert sorted(printed) == [1, 2]

@@ -67,6 +67,9 @@ def test_the_worst_finding_decides_and_names_its_segment():
     assert all(c.reason.startswith("segment 2: ") for c in v.caveats)
     assert set(v.figures) == {f"segment_{n}_{k}" for n in (1, 2)
                               for k in ("acc_held_out_mg", "acc_in_sample_mg")}
+    # Two good segments: the reason gives the worse one's figure.
+    ok = V.judge([_seg(0.3, 0.25, number=1), _seg(0.7, 0.6, number=2)], None)
+    assert ok.level == V.GOOD and ok.reason == "still poses the fit did not see are off by 0.7 mg"
 
 
 def test_a_maker_spec_makes_an_out_of_spec_unit_not_usable():
