@@ -220,8 +220,8 @@ def _segment_warnings(seg: Segment, where: int | None) -> list[RunWarning]:
     if seg.orientations < 9:
         out.append(RunWarning(
             "few_orientations", f"only {seg.orientations} distinct still orientations; 9 or "
-            "more are needed to determine the accelerometer's 9 parameters without the prior "
-            "(the regularisation holds the rest at nominal)", where))
+            "more determine the accelerometer's 9 parameters (with fewer, some are kept near "
+            "their nominal values, not measured)", where))
     return out
 
 
