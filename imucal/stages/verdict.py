@@ -224,8 +224,8 @@ def _accelerometer(seg: SegmentFigures, guide: Guide | None,
     if cv.undetermined:
         out.append(Finding("acc_undetermined", CAVEATS,
                            f"{where}the still poses do not determine "
-                           f"{', '.join(cv.undetermined)}: held at nominal, not measured",
-                           poses))
+                           f"{', '.join(cv.undetermined)}: kept near the nominal value, "
+                           "not measured", poses))
     if seg.orientations < ORIENTATIONS_NEEDED:
         out.append(Finding("few_orientations", CAVEATS,
                            f"{where}{seg.orientations} distinct orientations: "
