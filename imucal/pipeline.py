@@ -25,7 +25,7 @@ from imucal.stages.detect import Detection
 from imucal.stages.detect_score import count_orientations
 from imucal.stages.detect_tuning import tune_detector
 from imucal.stages.group import block_mean_variance, group_blocks
-from imucal.stages.guide import recording_guide
+from imucal.stages.guide import ADVISED_HOLD_S, recording_guide
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.quality import quality_figures
 from imucal.stages.sanity import (
@@ -37,6 +37,7 @@ from imucal.stages.sanity import (
     unwrap_session,
 )
 from imucal.stages.saturation import blocks_meeting, saturated_mask, saturated_runs
+from imucal.stages.verdict import SegmentFigures, judge
 from imucal.warning import RunWarning
 
 
@@ -110,7 +111,7 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
         seg = _segment(session, settings, still, whole, i, b0, b1, g_in, g_out, several)
         segments.append(seg)
         # A warning names its segment only when there are several: one segment is the session.
-        warnings += _segment_warnings(seg, i if several else None)
+        warnings += _segment_warnings(seg, seg.number if several else None)
 
     calibration = Calibration(
         segments=tuple(SegmentModels(t_start=s.t_start, t_end=s.t_end, acc=s.acc.model,
@@ -129,9 +130,11 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     guide = recording_guide(session, det, block_times, np.concatenate(
         [s.acc.model.apply(det.means[s.blocks[0]:s.blocks[1]]) for s in segments]),
         [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None], gyro_rows)
+    verdict = judge([SegmentFigures(s.number if several else None, s.acc_cv, s.gyro,
+                                    s.orientations) for s in segments], guide)
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
-                  quality=quality, g_in=g_in, warnings=warnings, guide=guide)
+                  quality=quality, g_in=g_in, warnings=warnings, guide=guide, verdict=verdict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -217,8 +220,8 @@ def _segment_warnings(seg: Segment, where: int | None) -> list[RunWarning]:
     if seg.orientations < 9:
         out.append(RunWarning(
             "few_orientations", f"only {seg.orientations} distinct still orientations; 9 or "
-            "more are needed to determine the accelerometer's 9 parameters without the prior "
-            "(the regularisation holds the rest at nominal)", where))
+            "more determine the accelerometer's 9 parameters (with fewer, some are kept near "
+            "their nominal values, not measured)", where))
     return out
 
 
@@ -265,7 +268,7 @@ def _check_blocks(session: Session, det: Detection, settings: Settings, g_in: fl
     elif short >= 9 - n and short > n:
         cause = (f"the holds are too short: {short} still stretches were shorter than the "
                  f"{tun.min_hold_s:.2g} s a block needs at the shortest window{tried}; hold "
-                 "each pose still for 1 s or more")
+                 f"each pose still for {ADVISED_HOLD_S:g} s or more")
     elif still < 0.5 and n < 9:
         hint = (f", or raise the threshold multiplier (now k = {det.k:g})"
                 if settings.k is not None else tried)

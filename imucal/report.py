@@ -4,6 +4,11 @@ The CLI prints a :class:`Report` as plain text (``imucal/cli/summary.py``) and t
 markdown (``viewer/summary.py``); both take their sentences and numbers from here, so the two
 never say different things. Layout (columns, tables, number precision of the tables) is
 theirs; what is said is this module's. Text is ASCII, for any terminal.
+
+The verdict comes first, then what a firmware engineer needs in their own words; the method's
+own vocabulary (the detector's window, the grouping's test, the L-curve, the fits' costs) is in
+``details`` and each fit's ``details``: the CLI prints them with ``-v``, the viewer at the end,
+and calib.json holds them all.
 """
 
 from __future__ import annotations
@@ -64,20 +69,26 @@ class FitSection:
 
 @dataclass(frozen=True)
 class SegmentSection:
-    index: int
-    span: str  # "0.0-179.7 s, 36 blocks, 30 orientations"
+    number: int  # from 1, as everywhere (:attr:`imucal.result.Segment.number`)
+    span: str  # "0.0-179.7 s, 36 still poses, 30 orientations"
     fits: tuple[FitSection, ...]  # the accelerometer's, then the gyroscope's if any
 
 
 @dataclass(frozen=True)
 class Report:
     title: str  # the source's file name
-    overview: tuple[Line, ...]  # session, static blocks, segments, lambda, output
+    overview: tuple[Line, ...]  # session, still poses, segments, output: plain words
     quality: tuple[QualityRow, ...]
     quality_notes: tuple[str, ...]  # why a "before" is missing, ...
     segments: tuple[SegmentSection, ...]
     warnings: tuple[RunWarning, ...]
     guide: tuple[Line, ...] = ()  # "strong", "weak", "record next": the recording judged
+    verdict: tuple[Line, ...] = ()  # "verdict", "next step", then "also" per other finding
+    details: tuple[Line, ...] = ()  # the method's own terms: detector, grouping, lambda
+
+
+# Under the quality table: what "held out" means (method.md §5), in a line.
+HELD_OUT_NOTE = "held out: each still pose and turn predicted by a fit that did not see it"
 
 
 def fmt(x: float | None, spec: str = ".6g") -> str:
@@ -92,39 +103,68 @@ def report(result: Result) -> Report:
     and the warnings."""
     q = result.quality
     quality = [
-        QualityRow("static norm error (mg)", q.static_norm_rms_mg, "RMS over the block means",
-                   q.static_norm_cv_mg),
-        QualityRow("sample norm error (mg)", q.sample_norm_rms_mg, "single samples: sensor noise"),
+        QualityRow("static norm error (mg)", q.static_norm_rms_mg,
+                   "|a| against |g| on the still poses, RMS", q.static_norm_cv_mg),
+        QualityRow("sample norm error (mg)", q.sample_norm_rms_mg,
+                   "the same on single samples: mostly the sensor's noise"),
     ]
     if q.gravity_angle_rms_deg is not None:
         quality.append(QualityRow("gravity angle (deg)", q.gravity_angle_rms_deg,
-                                  "RMS over the rotations: measured vs integrated",
-                                  q.gravity_angle_cv_deg))
+                                  "gravity the gyroscope carries through each turn against "
+                                  "the gravity measured after it, RMS", q.gravity_angle_cv_deg))
     return Report(title=Path(result.session.source).name, overview=_overview(result),
                   quality=tuple(quality), quality_notes=tuple(q.notes),
                   segments=tuple(_segment(result, seg) for seg in result.segments),
-                  warnings=tuple(result.warnings), guide=_guide(result))
+                  warnings=tuple(result.warnings), guide=_guide(result),
+                  verdict=_verdict(result), details=_details(result))
 
 
 def _overview(result: Result) -> tuple[Line, ...]:
     s, det, cal = result.session, result.detection, result.calibration
     gyro = (f"gyroscope {len(s.gyro)} samples at {_rate(s.gyro_rate)} ({s.gyro_unit})"
             if s.has_gyro else "no gyroscope")
-    lc = result.whole.lcurve
-    how = (f"L-curve corner, point {lc.corner + 1} of {len(lc.lambdas)}" if lc is not None
-           else "fixed")
     memory = (Line("memory", s.storage),) if s.storage else ()
+    segs = result.segments
+    if len(segs) == 1:
+        seg_text = "1: one calibration for the whole recording"
+    else:
+        starts = ", ".join(f"{seg.number} from {seg.t_start:.1f} s" for seg in segs[1:])
+        seg_text = (f"{len(segs)}: the sensor's errors changed during the recording, so each "
+                    f"part has its own calibration (segment 1 from the start, {starts})")
     return (
         Line("session", f"{s.source}: {s.duration:.1f} s, accelerometer {len(s.acc)} samples at "
                         f"{_rate(s.acc_rate)} ({s.acc_unit}), {gyro}"),
         *memory,
-        Line("static blocks", f"{len(det.blocks)} (window {det.window}, min length "
-                              f"{det.min_len} samples)"),
-        Line("segments", f"{len(result.segments)} ({result.grouping.mode})"),
-        Line("lambda", f"{fmt(result.whole.lam, '.3g')} ({how})"),
+        Line("still poses", f"{len(det.blocks)} found"),
+        Line("segments", seg_text),
         Line("output", f"calibrated accelerometer in {cal.acc_unit} (|g| = {cal.g:g})"
                        + (", gyroscope in rad/s" if s.has_gyro else "")),
     )
+
+
+def _details(result: Result) -> tuple[Line, ...]:
+    """The method's own terms (method.md §1-§3): the detector's values, how the segments were
+    found, the accelerometer's lambda and how it was chosen."""
+    det = result.detection
+    lc = result.whole.lcurve
+    how = (f"L-curve corner, point {lc.corner + 1} of {len(lc.lambdas)}" if lc is not None
+           else "fixed")
+    return (
+        Line("detector", f"{len(det.blocks)} static blocks (window {det.window}, min length "
+                         f"{det.min_len} samples, k {fmt(det.k, '.3g')})"),
+        Line("grouping", result.grouping.mode),
+        Line("lambda", f"{fmt(result.whole.lam, '.3g')} ({how})"),
+    )
+
+
+def _verdict(result: Result) -> tuple[Line, ...]:
+    """The verdict (:mod:`imucal.stages.verdict`): level and reason, the next step, and the
+    other findings, one line each."""
+    v = result.verdict
+    if v is None:
+        return ()
+    return (Line("verdict", v.text), Line("next step", v.next_step),
+            *(Line("also", c.reason) for c in v.caveats))
 
 
 def _guide(result: Result) -> tuple[Line, ...]:
@@ -145,9 +185,9 @@ def _segment(result: Result, seg: Segment) -> SegmentSection:
     fits = [_acc(seg.acc, result.calibration.acc_unit, result.session.acc_unit)]
     if seg.gyro is not None:
         fits.append(_gyro(seg.gyro, result.session.gyro_unit))
-    span = (f"{seg.t_start:.1f}-{seg.t_end:.1f} s, {seg.n_blocks} blocks, "
+    span = (f"{seg.t_start:.1f}-{seg.t_end:.1f} s, {seg.n_blocks} still poses, "
             f"{seg.orientations} orientations")
-    return SegmentSection(index=seg.index, span=span, fits=tuple(fits))
+    return SegmentSection(number=seg.number, span=span, fits=tuple(fits))
 
 
 def _acc(fit: AccFit, unit: str, raw: str) -> FitSection:
@@ -156,6 +196,7 @@ def _acc(fit: AccFit, unit: str, raw: str) -> FitSection:
     rows = tuple(ParamRow(n, k, u, float(v), float(e))
                  for n, k, u, v, e in zip(ACC_PARAM_NAMES, kinds, units, fit.params, fit.std))
     rep = fit.report
+    # The method's terms (method.md §3): shown with -v, and at the end of the viewer's summary.
     starts = ", ".join(f"{k} {fmt(v, '.3g')}" for k, v in fit.starts.items())
     details = (f"lambda {fmt(fit.lam, '.3g')}; from the {rep.start_name} start (cost reached "
                f"from each start: {starts}); cost {fmt(rep.cost_start, '.3g')} -> "

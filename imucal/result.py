@@ -21,6 +21,7 @@ from imucal.stages.guide import Guide
 from imucal.stages.gyro import GyroFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
+from imucal.stages.verdict import Verdict
 from imucal.warning import RunWarning
 
 
@@ -38,6 +39,13 @@ class Segment:
     @property
     def n_blocks(self) -> int:
         return self.blocks[1] - self.blocks[0]
+
+    @property
+    def number(self) -> int:
+        """The segment as people count it, from 1: the one numbering of every text, warning,
+        calib.json entry, viewer label and ``imucal export --segment`` (``index`` is its
+        0-based position in :attr:`Result.segments`)."""
+        return self.index + 1
 
 
 @dataclass(frozen=True)
@@ -62,6 +70,7 @@ class Result:
     g_in: float
     warnings: list[RunWarning] = field(default_factory=list)
     guide: Guide | None = None  # poses, holds and turns against the limits; what to record
+    verdict: Verdict | None = None  # good / usable with caveats / not usable, and why
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

@@ -15,7 +15,9 @@ from dataclasses import dataclass, replace
 class RunWarning:
     code: str  # short and stable, e.g. "few_orientations" (the list: docs in each stage)
     message: str  # one sentence for a person, without the segment
-    segment: int | None = None  # the segment it concerns; None: the whole session
+    # The segment it concerns, by its number from 1 (as printed everywhere, and as
+    # ``imucal export --segment`` takes it); None: the whole session.
+    segment: int | None = None
 
     @property
     def text(self) -> str:

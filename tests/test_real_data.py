@@ -33,6 +33,8 @@ def test_xsens_beats_the_reference_tool(xsens):
     fig = r.quality.sample_norm_rms_mg
     before, after = fig.before, fig.after
     assert before is None and 0.7 < after < 0.9  # single samples: the noise floor
+    # The reference data set of the method: a calibration to use (0.16 mg, 0.53 deg held out).
+    assert r.verdict.level == "good" and r.verdict.code == "good", r.verdict
 
 
 @pytest.mark.parametrize("unit", ["imu0.log", "imu1.log", "imu2.log"])
@@ -46,6 +48,7 @@ def test_mikoff_static_norm_error_improves(shared_data, unit):
     fig = r.quality.gravity_angle_rms_deg
     g_before, g_after = fig.before, fig.after
     assert g_after < g_before
+    assert r.verdict.level == "good", r.verdict  # 0.30-0.32 mg and 0.12-0.16 deg held out
 
 
 def test_ferraris_six_poses_is_reported_as_underdetermined(shared_data):
@@ -57,3 +60,12 @@ def test_ferraris_six_poses_is_reported_as_underdetermined(shared_data):
         assert "static blocks" in str(e)
         return
     assert any("orientations" in w.message for w in r.warnings)
+    # Six poses: 0.226 mg on the blocks the fit saw, 16.9 mg on each block held out of it.
+    # Not usable, and that is the reason given first, with the poses to record.
+    v = r.verdict
+    assert v.level == "not usable" and not v.usable and v.code == "acc_held_out"
+    assert v.reason.startswith("overfitted: still poses the fit did not see are off by 16.9 mg, "
+                               "against 0.226 mg on those it saw: 6 distinct orientations")
+    assert v.next_step.startswith("record 6 more poses: with (")
+    assert {c.code for c in v.caveats} >= {"acc_undetermined", "few_orientations",
+                                           "gyro_overfitted"}

@@ -22,18 +22,26 @@ def test_report_rows_of_the_sample_session(sample):
     r = sample
     rep = report(r)
     assert rep.title == "session.mat"
-    assert [line.label for line in rep.overview] == ["session", "static blocks", "segments",
-                                                     "lambda", "output"]
+    assert [line.label for line in rep.verdict] == ["verdict", "next step"]
+    assert rep.verdict[0].text.startswith("good: ")
+    assert [line.label for line in rep.overview] == ["session", "still poses", "segments",
+                                                     "output"]
     text = dict((line.label, line.text) for line in rep.overview)
     s = r.session
     assert text["session"].startswith(f"session.mat: {s.duration:.1f} s, accelerometer "
                                       f"{len(s.acc)} samples at 100 Hz (g), gyroscope "
                                       f"{len(s.gyro)} samples at 100 Hz (rad/s)")
-    assert text["static blocks"] == (f"{len(r.detection.blocks)} (window {r.detection.window}, "
-                                     f"min length {r.detection.min_len} samples)")
+    assert text["still poses"] == f"{len(r.detection.blocks)} found"
+    assert text["segments"] == "1: one calibration for the whole recording"
+    # The method's own terms, for -v and the viewer's last section.
+    detail = dict((line.label, line.text) for line in rep.details)
+    assert detail["detector"] == (f"{len(r.detection.blocks)} static blocks (window "
+                                  f"{r.detection.window}, min length {r.detection.min_len} "
+                                  f"samples, k {r.detection.k:.3g})")
     lc = r.whole.lcurve
-    assert text["lambda"] == (f"{r.whole.lam:.3g} (L-curve corner, point {lc.corner + 1} of "
-                              f"{len(lc.lambdas)})")
+    assert detail["lambda"] == (f"{r.whole.lam:.3g} (L-curve corner, point {lc.corner + 1} of "
+                                f"{len(lc.lambdas)})")
+    assert detail["grouping"] == r.grouping.mode
     # Quality: the core's figures themselves, before and after.
     assert [q.label for q in rep.quality] == ["static norm error (mg)", "sample norm error (mg)",
                                               "gravity angle (deg)"]
@@ -53,17 +61,21 @@ def test_report_rows_of_the_sample_session(sample):
     np.testing.assert_array_equal(gyro.values("bias"), g.model.b)
     assert [p.std for p in gyro.params][9:] == [None] * 3  # measured on the blocks, not fitted
     assert seg.span == (f"{r.segments[0].t_start:.1f}-{r.segments[0].t_end:.1f} s, "
-                        f"{r.segments[0].n_blocks} blocks, {r.segments[0].orientations} "
+                        f"{r.segments[0].n_blocks} still poses, {r.segments[0].orientations} "
                         "orientations")
     assert f"{len(g.u_meas)} rotations" in gyro.details
-    assert [w.code for w in rep.warnings] == ["input", "input"]  # the units were guessed
+    # The units were guessed; one turn tilts gravity under 15 deg (the guide's small turn,
+    # now also the warning's: one threshold for both).
+    assert [w.code for w in rep.warnings] == ["input", "input", "gyro_rotations_small"]
+    assert int(r.guide.turns.small.sum()) == 1
 
 
 def test_cli_and_viewer_say_the_same(sample):
     rep = report(sample)
-    cli = "\n".join(summary_lines(rep))
+    cli = "\n".join(summary_lines(rep, verbose=True))
     md = report_markdown(rep)
-    said = [line.text for line in rep.overview] + [q.note for q in rep.quality]
+    said = [line.text for line in rep.verdict + rep.overview + rep.details]
+    said += [q.note for q in rep.quality]
     said += [seg.span for seg in rep.segments] + [f.details for s in rep.segments for f in s.fits]
     said += [w.text for w in rep.warnings] + list(rep.quality_notes)
     for text in said:
@@ -74,3 +86,34 @@ def test_cli_and_viewer_say_the_same(sample):
     for p in rep.segments[0].fits[0].params:  # the CLI shows misalignments to 3 digits
         assert fmt(p.value, ".3g" if p.kind == "misalignment" else ".6g") in cli
         assert f"| {p.name} ({p.unit}) | {fmt(p.value)} | {fmt(p.std, '.2g')} |" in md
+
+
+# The thesis's vocabulary: never on the first screen, always behind -v (and in calib.json).
+METHOD_TERMS = ("window ", "min length", "Bonferroni", "F-test", "L-curve", "corner",
+                "cost reached", "cost ", "M1", "M5", "lambda", "static blocks")
+
+
+def test_the_first_screen_is_the_verdict_then_plain_words(sample):
+    rep = report(sample)
+    plain = summary_lines(rep)
+    assert plain[0] == f"{'verdict':16s}{sample.verdict.text}"
+    assert plain[1] == f"{'next step':16s}{sample.verdict.next_step}"
+    assert plain[0] == ("verdict         good: still poses the fit did not see are off by "
+                        f"{sample.quality.static_norm_cv_mg:.2g} mg; turns it did not see end "
+                        f"{sample.quality.gravity_angle_cv_deg:.2g} deg off the measured gravity")
+    for line in plain:
+        for term in METHOD_TERMS:
+            assert term not in line, (term, line)
+    verbose = summary_lines(rep, verbose=True)
+    assert set(plain) <= set(verbose)
+    shown = "\n".join(verbose)
+    for term in ("window ", "Bonferroni", "L-curve corner, point ", "cost reached from each",
+                 "lambda "):
+        assert term in shown, term
+    # The viewer: verdict at the top, the method's terms only in its last section.
+    md = report_markdown(rep)
+    assert md.splitlines()[2] == f"- **Verdict:** {sample.verdict.text}"
+    first, _, last = md.partition("## Method details")
+    assert "Bonferroni" in last and "cost reached" in last
+    for term in ("Bonferroni", "L-curve", "cost reached", "min length"):
+        assert term not in first, term

@@ -43,14 +43,15 @@ def test_few_orientations_is_warned_with_its_code(tmp_path, capsys):
 
 def test_a_segments_warnings_name_it(tmp_path, capsys):
     """Two segments, a gyroscope clipped throughout: the session is told once, each segment
-    of its own rotations left out, its number in the field and in front of the text."""
+    of its own rotations left out, its number (from 1, as the summary prints it and as
+    ``imucal export --segment`` takes it) in the field and in front of the text."""
     s, _ = make_session(poses=40, seed=5, change_at=0.5)
     peak = np.abs(s.gyro).max(axis=0).min()
     r = imucal.calibrate(dataclasses.replace(s, gyro=np.clip(s.gyro, -0.8 * peak, 0.8 * peak)))
     assert len(r.segments) == 2
     codes = [(w.code, w.segment) for w in r.warnings]
-    assert codes[:3] == [("gyro_saturated", None), ("gyro_rotations_saturated", 0),
-                         ("gyro_rotations_saturated", 1)]
+    assert codes[:3] == [("gyro_saturated", None), ("gyro_rotations_saturated", 1),
+                         ("gyro_rotations_saturated", 2)]
     # Anything after them is another finding (e.g. the held-out turns' check), not saturation.
     assert all("saturated" not in code for code, _ in codes[3:])
     for w, seg in zip(r.warnings[1:], r.segments):
@@ -59,10 +60,10 @@ def test_a_segments_warnings_name_it(tmp_path, capsys):
         assert w.text == f"segment {w.segment}: {w.message}"
     printed = _printed_warnings(r, capsys)
     assert printed[:3] == [f"  - {w.text}" for w in r.warnings[:3]]
-    assert printed[2].startswith("  - segment 1: ")
+    assert printed[1].startswith("  - segment 1: ") and printed[2].startswith("  - segment 2: ")
     imucal.save_calibration(r, tmp_path / "calib.json")
     written = json.loads((tmp_path / "calib.json").read_text())["warnings"]
-    assert written[2] == {"code": "gyro_rotations_saturated", "segment": 1,
+    assert written[2] == {"code": "gyro_rotations_saturated", "segment": 2,
                           "message": r.warnings[2].message}
 
 

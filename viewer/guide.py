@@ -1,11 +1,11 @@
 """The guide to the recording (Overview tab): :attr:`imucal.result.Result.guide` laid out.
 
 A sphere of the poses reached (each still block's gravity direction, the axis that was up),
-the directions no pose comes near, and the poses to record next; each still block's duration
-at its middle against the detector's minimum; each turn's peak rate and gravity tilt at its
-middle against their limits. The limits are lines of two rows (the session's first and last
-sample), so every plot draws on the timeline ``time`` the layout opens on. Every number is the
-core's (:mod:`imucal.stages.guide`).
+the directions no pose comes near, and the poses to record next; each pose's hold at its
+middle against the shortest hold that counts and the hold advised; each turn's peak rate and
+gravity tilt at its middle against their limits. The limits are lines of two rows (the
+session's first and last sample), so every plot draws on the timeline ``time`` the layout
+opens on. Every number is the core's (:mod:`imucal.stages.guide`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from imucal.stages.accel_cv import axis_words
-from imucal.stages.guide import NEAR_MIN_FACTOR
 
 from . import paths as P
 from .columns import BEFORE, GREY, MEASURED, XYZ, rgba, send_scalars, style_lines, style_points
@@ -40,14 +39,16 @@ def log_guide(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> 
     span = [float(t[0]), float(t[-1])]
     h = g.holds
     mid = result.block_middles
-    rows[P.GUIDE_HOLD] = send_scalars(rec, P.GUIDE_HOLD, mid, h.duration_s)
-    style_points(rec, P.GUIDE_HOLD, ["still block duration (s)"], [MEASURED])
-    _flagged(rec, P.GUIDE_HOLD_NEAR_MIN, mid, h.duration_s, h.near_min, "near the minimum",
-             rows)
-    _line(rec, P.GUIDE_HOLD_MIN, span, h.min_s, f"minimum {h.min_s:.2g} s ({h.min_source})",
-          BEFORE, rows)
-    _line(rec, P.GUIDE_HOLD_WARN, span, h.min_s * NEAR_MIN_FACTOR,
-          f"{NEAR_MIN_FACTOR:g} x minimum", GREY, rows)
+    # The guide's one minimum and one advice (imucal.stages.guide): the hold that counts, the
+    # hold advised; each pose's hold is its block with the detector window's edges.
+    rows[P.GUIDE_HOLD] = send_scalars(rec, P.GUIDE_HOLD, mid, h.hold_s)
+    style_points(rec, P.GUIDE_HOLD, ["pose hold (s)"], [MEASURED])
+    _flagged(rec, P.GUIDE_HOLD_NEAR_MIN, mid, h.hold_s, h.near_min,
+             f"held under {h.near_s:.2g} s", rows)
+    _line(rec, P.GUIDE_HOLD_MIN, span, h.count_s,
+          f"a hold counts from {h.count_s:.2g} s ({h.min_source})", BEFORE, rows)
+    _line(rec, P.GUIDE_HOLD_WARN, span, h.recommended_s, f"advised {h.recommended_s:g} s",
+          GREY, rows)
 
     tg = g.turns
     if len(tg.peak_rate):
@@ -110,7 +111,9 @@ def _log_info(g: Guide, rec: rr.RecordingStream) -> None:
     rec.log(P.GUIDE_INFO, rr.AnyValues(
         orientations=int(g.poses.orientations), coverage=float(g.poses.coverage),
         min_s=float(g.holds.min_s), min_len=int(g.holds.min_len),
+        min_hold_s=float(g.holds.count_s), advised_hold_s=float(g.holds.recommended_s),
         min_source=g.holds.min_source, short_holds=int(g.holds.short_holds),
+        short_holds_at_s=np.asarray(g.holds.short_at_s, dtype=float),
         rate_limit=float(t.rate_limit), limit_source=t.limit_source,
         full_scale=float("nan") if t.full_scale is None else float(t.full_scale),
         full_scale_source=t.full_scale_source, min_tilt_deg=float(t.min_tilt_deg),
@@ -147,7 +150,8 @@ def guide_views(result: Result | None = None) -> list[rrb.View]:
     given."""
     g = None if result is None else result.guide
     gyro = g is None or len(g.turns.peak_rate) > 0
-    hold_min = "" if g is None else f" {g.holds.min_s:.2g} s"
+    hold_min = ("" if g is None else
+                f" {g.holds.count_s:.2g} s, grey: advised {g.holds.recommended_s:g} s")
     rate = "" if g is None else f" {g.turns.rate_limit:.3g}"
     tilt = "" if g is None else f" {g.turns.min_tilt_deg:g}"
     views: list[rrb.View] = [
@@ -158,10 +162,9 @@ def guide_views(result: Result | None = None) -> list[rrb.View]:
             eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital,
                                            position=[1.65, -2.0, 1.35], look_target=[0, 0, 0],
                                            eye_up=[0, 0, 1])),
-        _ts(f"Still block duration (s); red: minimum{hold_min}, grey: {NEAR_MIN_FACTOR:g}x",
+        _ts(f"Pose holds (s); red: counts from{hold_min}",
             P.GUIDE_HOLD, P.GUIDE_HOLD_NEAR_MIN, P.GUIDE_HOLD_MIN, P.GUIDE_HOLD_WARN,
-            top=None if g is None else _top(g.holds.duration_s,
-                                             g.holds.min_s * NEAR_MIN_FACTOR))]
+            top=None if g is None else _top(g.holds.hold_s, g.holds.recommended_s))]
     if gyro:
         t = None if g is None else g.turns
         views += [_ts(f"Turns: peak rate (rad/s); red line: limit{rate}", P.GUIDE_TURN_RATE,

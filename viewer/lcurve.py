@@ -41,8 +41,8 @@ def log_lcurves(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -
         return
     curves = [(P.LCURVE_POINTS, lc, CALIBRATED, "whole session")]
     if len(result.segments) > 1:
-        curves += [(P.lcurve_segment(s.index), s.acc.lcurve,
-                    SEGMENT_COLORS[(s.index + 1) % len(SEGMENT_COLORS)], f"segment {s.index}")
+        curves += [(P.lcurve_segment(s.number), s.acc.lcurve,
+                    SEGMENT_COLORS[s.number % len(SEGMENT_COLORS)], f"segment {s.number}")
                    for s in result.segments if s.acc.lcurve is not None]
     _log_lcurve_plot(rec, curves)
     if whole.sweep is not None:

@@ -25,11 +25,11 @@ WHATS = ("log10_cost", "misalignment", "scale", "bias")
 
 def fits(result: Result) -> list[tuple[str, object, object]]:
     """(name, accelerometer fit, gyroscope fit or None) of every fit the optimiser ran: the
-    first whole-session fit when it is not segment 0's, then each segment's."""
+    first whole-session fit when it is not segment 1's, then each segment's."""
     out = []
     if len(result.segments) > 1 or result.segments[0].acc is not result.whole:
         out.append(("whole", result.whole, None))
-    out += [(f"segment_{s.index}", s.acc, s.gyro) for s in result.segments]
+    out += [(f"segment_{s.number}", s.acc, s.gyro) for s in result.segments]
     return out
 
 

@@ -55,7 +55,8 @@ LCURVE_CORNER = series(LCURVE, "corner")  # Points2D + AnyValues(lambda, index, 
 
 
 def lcurve_segment(i: int) -> str:
-    """A segment's own L-curve, logged only when the session has more than one segment."""
+    """Segment ``i``'s (its number, from 1) own L-curve, logged only when the session has
+    more than one segment."""
     return series(LCURVE, f"segment_{i}")
 
 
@@ -78,7 +79,7 @@ def iteration(sensor: str, what: str) -> str:
 
 def iteration_series(fit: str, sensor: str, what: str, param: str) -> str:
     """One parameter's trace: ``fit`` is ``segment_<i>`` (or ``whole`` for the first
-    whole-session fit when it differs from segment 0); ``param`` a parameter name (``cost``
+    whole-session fit when it differs from segment 1's); ``param`` a parameter name (``cost``
     for ``log10_cost``, whose y is log10 of the cost)."""
     return series(iteration(sensor, what), f"{fit}/{param}")
 
@@ -95,7 +96,8 @@ QUALITY = "calibration/quality"  # AnyValues: the quality figures, before/after
 
 
 def calibration(i: int, sensor: str) -> str:
-    """AnyValues with a segment's parameters: ``sensor`` ``accelerometer`` or ``gyroscope``."""
+    """AnyValues with segment ``i``'s parameters (its number, from 1, as the CLI prints it):
+    ``sensor`` ``accelerometer`` or ``gyroscope``."""
     return f"calibration/segment_{i}/{sensor}"
 
 
@@ -106,10 +108,10 @@ GUIDE_AXES = "guide/axes"  # static Arrows3D body x, y, z
 GUIDE_POSES = "guide/poses"  # static Points3D: each still block's gravity direction (up axis)
 GUIDE_MISSING = "guide/missing"  # static Points3D: sphere directions no pose comes near
 GUIDE_NEXT = "guide/next"  # static Arrows3D: poses to record next, labelled "+x, -z"
-GUIDE_HOLD = "guide_holds/duration_s"  # Scalars per block at its middle: duration, s
-GUIDE_HOLD_NEAR_MIN = "guide_holds/near_minimum_s"  # the blocks near the minimum only
-GUIDE_HOLD_MIN = "guide_holds/minimum_s"  # the detector's minimum, 2 rows (a line)
-GUIDE_HOLD_WARN = "guide_holds/near_minimum_limit_s"  # NEAR_MIN_FACTOR x minimum, a line
+GUIDE_HOLD = "guide_holds/duration_s"  # Scalars per pose at its block's middle: its hold, s
+GUIDE_HOLD_NEAR_MIN = "guide_holds/near_minimum_s"  # the holds near the minimum only
+GUIDE_HOLD_MIN = "guide_holds/minimum_s"  # the shortest hold that counts, 2 rows (a line)
+GUIDE_HOLD_WARN = "guide_holds/near_minimum_limit_s"  # the hold advised (the guide's), a line
 GUIDE_TURN_RATE = "guide_turns/peak_rate"  # Scalars per turn at its middle: rad/s
 GUIDE_TURN_FAST = "guide_turns/peak_rate_over_limit"  # the turns over the limit only
 GUIDE_TURN_LIMIT = "guide_turns/rate_limit"  # rad/s, a line

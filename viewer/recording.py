@@ -35,7 +35,7 @@ detector/statistic                           time       Scalars log10 s2 (M1) (*
 detector/threshold                           time       Scalars log10 (k s2_init), 2 rows
 detector/blocks                              time       StateChange "still" at each block's first
                                                         sample, reset at its last
-detector/segments                            time       StateChange "segment i", "between
+detector/segments                            time       StateChange "segment i" (from 1), "between
                                                         segments" (mean of neighbours' parameters)
 blocks/norm_error_mg/before | after          time       Scalars ``|mean a| / g - 1`` in mg, one
                                                         row per static block at its middle
@@ -84,7 +84,7 @@ iteration/<sensor>/<what>/<fit>/<param>      static     x accepted step (0 = the
                                                         AnyValues cost) | misalignment | scale |
                                                         bias; <fit> segment_<i> (and ``whole`` when
                                                         the first whole-session fit is not segment
-                                                        0's); <sensor> accelerometer | gyroscope
+                                                        1's); <sensor> accelerometer | gyroscope
 calibration/summary                          static     TextDocument (markdown): ``imucal.report``
                                                         (parameters with standard errors, quality,
                                                         warnings), as the CLI prints it

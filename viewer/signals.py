@@ -92,7 +92,7 @@ def _log_lanes(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) ->
     rows[P.DETECTOR_BLOCKS] = len(times)
 
     seg_t, seg_s = [], []
-    names = [f"segment {seg.index}" for seg in result.segments]
+    names = [f"segment {seg.number}" for seg in result.segments]
     for seg, name in zip(result.segments, names):
         seg_t.append(seg.t_start)
         seg_s.append(name)

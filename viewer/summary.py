@@ -10,7 +10,7 @@ import numpy as np
 import rerun as rr
 
 from imucal.models import ACC_PARAM_NAMES
-from imucal.report import Report, fmt, report
+from imucal.report import HELD_OUT_NOTE, Report, fmt, report
 
 from . import paths as P
 from .columns import nan_if_none
@@ -23,7 +23,7 @@ def log_results(result: Result, rec: rr.RecordingStream) -> None:
     s, q = result.session, result.quality
     for seg in result.segments:
         a = seg.acc
-        rec.log(P.calibration(seg.index, "accelerometer"), rr.AnyValues(
+        rec.log(P.calibration(seg.number, "accelerometer"), rr.AnyValues(
             T=a.model.T.ravel(), K=a.model.K, b=a.model.b, params=a.params, std=a.std,
             param_names=list(ACC_PARAM_NAMES), **{"lambda": float(a.lam)},
             t_start=float(seg.t_start), t_end=float(seg.t_end), start=a.report.start_name,
@@ -32,7 +32,7 @@ def log_results(result: Result, rec: rr.RecordingStream) -> None:
             orientations=int(seg.orientations)), static=True)
         g = seg.gyro
         if g is not None:
-            rec.log(P.calibration(seg.index, "gyroscope"), rr.AnyValues(
+            rec.log(P.calibration(seg.number, "gyroscope"), rr.AnyValues(
                 T=g.model.T.ravel(), K=g.model.K, b=g.model.b, params=g.params,
                 std=g.std, param_names=list(g.param_names), **{"lambda": float(g.lam)},
                 bias_source=g.bias_source, nominal_scale=float(g.nominal_scale),
@@ -70,6 +70,9 @@ def summary_markdown(result: Result) -> str:
 
 def report_markdown(rep: Report) -> str:
     lines = [f"# IMU calibration: {rep.title}", ""]
+    # The verdict first (Overview and Summary tabs show this document from its top).
+    lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.verdict]
+    lines += [""] if rep.verdict else []
     lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.overview]
     lines += ["", "## Quality", "", "| figure | before | after | held out |",
               "|---|---:|---:|---:|"]
@@ -79,22 +82,29 @@ def report_markdown(rep: Report) -> str:
                      f"{fmt(row.figure.after, '.4g')} | {held} |")
     # What each figure measures, under the table: a narrow panel (the Overview's) then still
     # shows the numbers instead of cutting the table at its long first column.
-    lines += ["", "; ".join(f"*{row.label}*: {row.note}" for row in rep.quality), ""]
+    lines += ["", "; ".join(f"*{row.label}*: {row.note}" for row in rep.quality)
+              + f"; *{HELD_OUT_NOTE}*", ""]
     lines += [f"- {n}" for n in rep.quality_notes]
     lines.append("")
     if rep.guide:
         lines += ["## Guide to the recording", ""]
         lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.guide] + [""]
     for seg in rep.segments:
-        lines += [f"## Segment {seg.index}: {seg.span}", ""]
+        lines += [f"## Segment {seg.number}: {seg.span}", ""]
         for fit in seg.fits:
             lines += [f"### {fit.sensor.capitalize()}: {fit.model}", "",
                       "| parameter | value | std. error |", "|---|---:|---:|"]
             for p in fit.params:
                 label = f"{p.name} ({p.unit})" if p.unit else p.name
                 lines.append(f"| {label} | {fmt(p.value)} | {fmt(p.std, '.2g')} |")
-            lines += ["", fit.details, ""]
+            lines.append("")
     lines += ["## Warnings", ""]
     lines += [f"- {w.text}" for w in rep.warnings] or ["none"]
+    lines.append("")
+    # The method's own terms last, out of a first reader's way (the CLI's -v).
+    lines += ["## Method details", ""]
+    lines += [f"- **{line.label.capitalize()}:** {line.text}" for line in rep.details]
+    for seg in rep.segments:
+        lines += [f"- **Segment {seg.number}, {fit.sensor}:** {fit.details}" for fit in seg.fits]
     lines.append("")
     return "\n".join(lines)

@@ -74,19 +74,33 @@ def calibrate(
     calibrated: Annotated[str | None, typer.Option(
         "--calibrated", metavar="OUT.parquet|.csv|.mat",
         help="Also write the calibrated signals.")] = None,
+    allow_poor: Annotated[bool, typer.Option(
+        "--allow-poor", help="Write the outputs even when the verdict is 'not usable' (and "
+                             "exit 0).")] = False,
+    spec: Annotated[Path | None, typer.Option(
+        "--spec", metavar="LIMITS.toml", show_default=False,
+        help="Limits the unit must be within (as for 'imucal batch'): out of them, the "
+             "verdict is 'not usable'.")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
     """Calibrate a recording and write the calibration file (and optionally more).
 
-    Every output is written to a temporary file and renamed into place only when all are
-    complete: a failed or interrupted run changes no file.
+    The summary opens with the verdict: good, usable with caveats, or not usable, with the
+    reason and the next step. A run that is not usable writes nothing and exits 1 unless
+    --allow-poor. Every output is written to a temporary file and renamed into place only when
+    all are complete: a failed or interrupted run changes no file.
     """
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    inputs = [session, load_kw["gyro_path"]]
+    inputs = [session, load_kw["gyro_path"], spec]
     check_inputs(inputs)
+    limits = None
+    if spec is not None:
+        from imucal.fleet.spec import load_spec
+
+        limits = load_spec(spec)  # before any work: a bad spec is one line, nothing run
     if calibrated is not None:
         from imucal.io.export import output_format
 
@@ -108,6 +122,14 @@ def calibrate(
             sess = imucal.load_session(session, **load_kw)
         with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
             result = imucal.calibrate(sess, **settings)
+        if limits is not None:
+            result = _judged_by_spec(result, limits)
+        if result.verdict is not None and not result.verdict.usable and not allow_poor:
+            # Nothing is written (the transaction is left without a commit): a script's
+            # `imucal calibrate ... && flash` stops here. The summary says why in full.
+            print_summary(result, [], verbose=verbose)
+            raise ImucalError(f"not usable: {result.verdict.reason}; nothing written "
+                              "(--allow-poor writes it anyway)", source=str(session))
         with progress.stage(f"writing {out}"), tx.writing(out) as tmp:
             imucal.save_calibration(result, tmp)
         if calibrated is not None:
@@ -121,9 +143,22 @@ def calibrate(
     if calibrated is not None:
         written += written_tables(Path(calibrated), result.calibrated)
     written += [rrd] if rrd is not None else []
-    print_summary(result, written)
+    print_summary(result, written, verbose=verbose)
     if tx.removed:
         print("\n".join(removed_lines(tx.removed, result.calibrated)))
+
+
+def _judged_by_spec(result, limits):
+    """The run with a maker's limits folded into its verdict (the same check as a batch's)."""
+    import dataclasses
+
+    from imucal.fleet.spec import check
+    from imucal.fleet.summary import result_columns
+    from imucal.stages.verdict import with_spec
+
+    found = check(limits, result_columns(result))
+    return dataclasses.replace(result, verdict=with_spec(
+        result.verdict, found.to_dict() | {"limits": limits.limits}, limits.source))
 
 
 def _sidecar(table: str | None) -> Path | None:

@@ -108,7 +108,9 @@ def batch(
     """Calibrate many recordings on a Dask cluster: one calib.json each and a summary table.
 
     A session that fails is a row with its error; re-running skips sessions whose input
-    (sha256), settings and spec are unchanged. Exit 1 when a session failed or broke the spec.
+    (sha256), settings and spec are unchanged. Each session's verdict (good, usable with
+    caveats, not usable) is a column of the table. Exit 1 when a session failed, broke the spec
+    or is not usable.
     """
     gyro = options["gyro"]
     if gyro is not None and (Path(gyro).exists() or Path(gyro).suffix.lower() in _DATA_SUFFIXES):
@@ -154,6 +156,17 @@ def _print_report(report, limits) -> int:
         judged = [r for r in rows if r["spec_pass"] is not None and r["status"] == "ok"]
         lines.append(f"spec            {limits.source}: {len(judged) - len(out_of_spec)} pass, "
                      f"{len(out_of_spec)} fail")
+    ok = by["ok"]
+    levels = [r.get("verdict") for r in ok]
+    not_usable = [r for r in ok if r.get("verdict") == "not usable"]
+    if any(levels):
+        lines.append(f"verdict         {levels.count('good')} good, "
+                     f"{levels.count('usable with caveats')} usable with caveats, "
+                     f"{len(not_usable)} not usable")
+    if not_usable:
+        lines.append("not usable:")
+        lines += [f"  - {r['device']}/{r['session']}: {r['verdict_reason']}; next: "
+                  f"{r['verdict_next']}" for r in not_usable]
     if failed:
         lines.append("failed:")
         lines += [f"  - {r['error'] if r['path'] in r['error'] else r['path'] + ': ' + r['error']}"
@@ -172,7 +185,8 @@ def _print_report(report, limits) -> int:
         lines += [f"  - not stored: {f}" for f in stored.failed]
     lines.append(f"wrote {report.summary}")
     print("\n".join(lines))
-    return EXIT_SESSIONS_FAILED if failed or out_of_spec or (stored and stored.failed) else 0
+    bad = failed or out_of_spec or not_usable or (stored and stored.failed)
+    return EXIT_SESSIONS_FAILED if bad else 0
 
 
 

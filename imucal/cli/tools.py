@@ -62,9 +62,25 @@ def export_cmd(
     check_outputs([target], [calibration, noise])
     result = export(calibration, to, target, segment=segment, noise=noise)
     lines = [f"export          {to}: {calibration}"]
+    verdict = _verdict_of(calibration)
+    if verdict is not None and verdict.get("level") != "good":
+        # Written with --allow-poor, or with caveats: said again where it leaves imucal.
+        lines.insert(0, f"verdict         {verdict.get('level')}: {verdict.get('reason')}")
     lines += [f"  - {n}" for n in result.notes]
     lines += [f"wrote {p}" for p, _ in result.files]
     print("\n".join(lines))
+
+
+def _verdict_of(calibration: Path) -> dict | None:
+    """The run's verdict in a calibration file (None for a file without one: version 1, or
+    written from Python without a run)."""
+    import json
+
+    try:
+        verdict = json.loads(calibration.read_text(encoding="utf-8")).get("verdict")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return verdict if isinstance(verdict, dict) else None
 
 
 @app.command("noise")

@@ -17,6 +17,7 @@ worker process's peak memory so far.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import os
@@ -30,7 +31,7 @@ from typing import Any
 from imucal.errors import ImucalError
 from imucal.fleet import naming
 from imucal.fleet.spec import Spec, check
-from imucal.fleet.summary import empty_row, result_columns, to_frame
+from imucal.fleet.summary import empty_row, result_columns, to_frame, verdict_columns
 
 SUMMARY = "summary.parquet"
 SINGLE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
@@ -147,6 +148,7 @@ def run_job(job: Job) -> dict[str, Any]:
         from imucal.io.calibration_file import result_to_dict
         from imucal.io.load import load_session
         from imucal.pipeline import calibrate
+        from imucal.stages.verdict import with_spec
 
         session = load_session(job.path, **job.load_kw, threads=1)  # workers use the cores
         if session.sha256 != job.sha256:
@@ -159,6 +161,12 @@ def run_job(job: Job) -> dict[str, Any]:
             verdict = check(job.spec, row)
             row |= {"spec_pass": verdict.passed, "spec_broken": verdict.broken,
                     "spec_unchecked": verdict.unchecked}
+            # One verdict: a unit out of its limits is not usable (as `imucal calibrate
+            # --spec` says it), in the table and in its calib.json.
+            result = dataclasses.replace(result, verdict=with_spec(
+                result.verdict, verdict.to_dict() | {"limits": job.spec.limits},
+                job.spec.source))
+            row |= verdict_columns(result.verdict)
         doc = result_to_dict(result) | {
             "device": job.identity.device, "session": row["session"],
             "calibrated_at": row["calibrated_at"].isoformat(),

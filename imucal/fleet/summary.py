@@ -43,6 +43,8 @@ _RESULT_COLUMNS: dict[str, str] = {
     "gravity_angle_rms_deg_before": "float", "gravity_angle_rms_deg_after": "float",
     # the same figures out of sample (method.md §5): blocks and turns held out of the fit
     "static_norm_rms_mg_cv": "float", "gravity_angle_rms_deg_cv": "float",
+    # the run judged (imucal.stages.verdict), a maker's limits folded in when a spec is given
+    "verdict": "str", "verdict_reason": "str", "verdict_next": "str",
     "warnings": "list",
 }
 _SPEC_COLUMNS: dict[str, str] = {"spec_pass": "bool", "spec_broken": "list",
@@ -84,8 +86,17 @@ def result_columns(result: Result) -> dict[str, Any]:
         row[f"{name}_before"], row[f"{name}_after"] = _num(before), _num(after)
     row["static_norm_rms_mg_cv"] = _num(q.static_norm_cv_mg)
     row["gravity_angle_rms_deg_cv"] = _num(q.gravity_angle_cv_deg)
+    row |= verdict_columns(result.verdict)
     row["warnings"] = [w.text for w in result.warnings] + list(q.notes)
     return row
+
+
+def verdict_columns(verdict) -> dict[str, Any]:
+    """The verdict's columns of a row (``None`` where the run has none)."""
+    if verdict is None:
+        return {"verdict": None, "verdict_reason": None, "verdict_next": None}
+    return {"verdict": verdict.level, "verdict_reason": verdict.reason,
+            "verdict_next": verdict.next_step}
 
 
 def empty_row() -> dict[str, Any]:

@@ -28,7 +28,10 @@ if TYPE_CHECKING:
     from imucal.stages.quality import BeforeAfter
 
 FORMAT = "imucal-calibration"
-FORMAT_VERSION = 1
+# Version 2: segments are numbered from 1 everywhere (a warning's "segment", as the CLI prints
+# it and ``imucal export --segment`` takes it; version 1 wrote its 0-based position), and the
+# run's verdict is a top-level "verdict" object. Version-1 files load through MIGRATIONS[1].
+FORMAT_VERSION = 2
 CONVENTIONS = {
     "accelerometer": "a = T K (a_raw - b) (Tedaldi et al. 2014; method.md M2), "
                      "T = [[1, -a_yz, a_zy], [0, 1, -a_zx], [0, 0, 1]], K = diag(s_x, s_y, s_z), "
@@ -141,6 +144,8 @@ def result_to_dict(result: Result) -> dict:
         "noise": noise_to_dict(result.noise),
         "warnings": [w.to_dict() for w in result.warnings],  # {code, segment, message}
         "guide": None if result.guide is None else result.guide.to_dict(),
+        # The run judged (imucal.stages.verdict): level, the one reason, the next step.
+        "verdict": None if result.verdict is None else result.verdict.to_dict(),
     }
 
 
@@ -238,10 +243,22 @@ def calibration_to_dict(cal: Calibration) -> dict:
             **cal.to_dict()}
 
 
-# Upgrades of older calibration files: MIGRATIONS[n] turns a version-n dict into version n + 1.
-# A future format_version 2 adds its entry MIGRATIONS[1] here, and every version-1 file still
-# loads through it; a file newer than this imucal is refused, never guessed at.
-MIGRATIONS: dict[int, Callable[[dict], dict]] = {}
+def _v1_to_v2(data: dict) -> dict:
+    """Version 1 named a warning's segment by its 0-based position; version 2 by its number
+    from 1. A version-1 file has no verdict (it stays without one: nothing judged it)."""
+    data = dict(data)
+    warnings = data.get("warnings")
+    if isinstance(warnings, list):
+        data["warnings"] = [
+            w | {"segment": w["segment"] + 1}
+            if isinstance(w, dict) and type(w.get("segment")) is int else w
+            for w in warnings]
+    return data
+
+
+# Upgrades of older calibration files: MIGRATIONS[n] turns a version-n dict into version n + 1,
+# so every older file still loads; a file newer than this imucal is refused, never guessed at.
+MIGRATIONS: dict[int, Callable[[dict], dict]] = {1: _v1_to_v2}
 
 
 def migrate(data: dict, source: str = "calibration") -> dict:

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
+# Two still poses this far apart are distinct orientations; a turn that moves gravity less
+# lands in the same pose (imucal.stages.guide.MIN_TILT_DEG, the warnings, the viewer).
+DISTINCT_ANGLE_DEG = 15.0
 
-def distinct_orientations(vectors: np.ndarray, min_angle_deg: float = 15.0) -> int:
+
+def distinct_orientations(vectors: np.ndarray, min_angle_deg: float = DISTINCT_ANGLE_DEG) -> int:
     """How many of the directions differ from all kept ones by at least ``min_angle_deg``.
 
     A greedy count over blocks (tens to hundreds), not over samples.

@@ -298,10 +298,11 @@ def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: No
                               "than it started from"))
     weak = undetermined(report.jac, ACC_PARAM_NAMES)
     if weak:
+        # Plain words first; the fit's condition number (method.md §3) last, for who wants it.
         out.append(RunWarning("acc_undetermined", f"the still poses do not determine "
-                              f"{', '.join(weak)} (condition number {report.jac_cond:.3g}): the "
-                              "regularisation holds them near nominal; record poses in more "
-                              "directions"))
+                              f"{', '.join(weak)}: kept near the nominal value, not measured; "
+                              "record poses in more directions (condition number "
+                              f"{report.jac_cond:.3g})"))
     if np.max(np.abs(th[:3])) > 0.2:
         out.append(RunWarning("acc_misalignment_large", f"accelerometer misalignment angles "
                               f"{np.round(th[:3], 3).tolist()} rad are implausibly large"))

@@ -66,6 +66,7 @@ class Tuning:
     hold_s: float | None  # median duration of the chosen blocks plus one window, s
     short_holds: int = 0  # still stretches too short for a block, at the shortest window tried
     min_hold_s: float | None = None  # the shortest still stretch a block comes from there, s
+    short_hold_starts: np.ndarray | None = None  # (short_holds,) first sample of each, int
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.models import ACC_THETA0
+from imucal.numerics.directions import DISTINCT_ANGLE_DEG
 from imucal.numerics.rows import floats
 from imucal.numerics.windows import CHUNK_ROWS, block_means
 from imucal.stages.accel import (
@@ -123,7 +124,8 @@ def count_orientations(means: np.ndarray, acc_unit: str, g_in: float) -> int:
     return min(len(means), 1) if p is None else count_directions(p)
 
 
-def count_directions(p: np.ndarray, min_angle_deg: float = 15.0, block: int = 256) -> int:
+def count_directions(p: np.ndarray, min_angle_deg: float = DISTINCT_ANGLE_DEG,
+                     block: int = 256) -> int:
     """:func:`imucal.numerics.directions.distinct_orientations`'s greedy count (a direction is
     kept unless within ``min_angle_deg`` of one kept before it): it runs on every candidate.
     The cosines are taken a block of directions at a time against those kept and against each

@@ -128,15 +128,15 @@ def tune_detector(acc, t, settings: DetectSettings, *, acc_unit: str = "g", g_in
     cands[chosen] = scorer.candidate(best.window, best.min_len, best.k, exact, force=True)
     reason = why(cands[chosen])
     _refuse_never_still(clean, blocks, source)
-    short, min_hold = _short_holds(clean, passes, settings, threshold, local, outliers,
-                                   (best.window, runs))
+    short, min_hold, short_starts = _short_holds(clean, passes, settings, threshold, local,
+                                                 outliers, (best.window, runs))
     tuned = tuple(name for name, v in (("window", settings.window), ("min_len", settings.min_len),
                                        ("k", settings.k)) if v is None)
     tuning = Tuning(
         tuned=tuned, reference=reference, local_factor=q, quiet_level=quiet, quiet_window=wq,
         candidates=tuple(cands), chosen=chosen, reason=reason,
         hold_s=float((np.median(exact.counts) + best.window) / rate) if len(blocks) else None,
-        short_holds=short, min_hold_s=min_hold / rate)
+        short_holds=short, min_hold_s=min_hold / rate, short_hold_starts=short_starts)
     named = glitches(outliers, acc, clean, passes[best.window].at_outliers, threshold)
     return Detection(threshold=threshold, s2_init=ref, blocks=blocks, means=exact.means,
                      window=best.window, min_len=best.min_len, init=init, k=best.k, note=note,
@@ -181,10 +181,11 @@ def _pass(clean: CleanRows, window: int, statistic: str, ks: tuple[float, ...],
 
 def _short_holds(clean: CleanRows, passes: dict[int, WindowPass], settings: DetectSettings,
                  threshold: float, local: str | None, outliers: np.ndarray,
-                 chosen: tuple[int, np.ndarray]) -> tuple[int, int]:
+                 chosen: tuple[int, np.ndarray]) -> tuple[int, int, np.ndarray]:
     """How many still stretches, seen through the shortest window tried, were too short to
-    make a block there, and the shortest a block can come from (``min_len`` still windows:
-    ``min_len + w - 1`` samples). The chosen window's runs serve when it is the shortest."""
+    make a block there, the shortest a block can come from (``min_len`` still windows:
+    ``min_len + w - 1`` samples), and where each short one starts (a sample index: the guide
+    names them by time). The chosen window's runs serve when it is the shortest."""
     w = min(passes)
     shortest = settings.min_len or min_len_for(w)
     runs = chosen[1]
@@ -193,7 +194,8 @@ def _short_holds(clean: CleanRows, passes: dict[int, WindowPass], settings: Dete
                                    local_factor(w, local) if local else None, outliers,
                                    passes[w].still_samples(threshold))
     lengths = runs[:, 1] - runs[:, 0]
-    return int(np.sum((lengths >= 2) & (lengths < shortest))), shortest + w - 1
+    short = (lengths >= 2) & (lengths < shortest)
+    return int(np.sum(short)), shortest + w - 1, runs[short, 0].astype(np.int64)
 
 
 def candidate_windows(rate: float, n: int) -> list[int]:

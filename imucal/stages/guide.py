@@ -5,8 +5,10 @@ lack, and what to record next (issue 14, item 7). Pure arithmetic on what the ru
   (the accelerometer reads +|g| along the axis pointing up, so this is "the axis that was up");
   the directions of the sphere no pose comes near (:func:`imucal.stages.accel_cv.coverage`, the
   same test the overfitting advice uses) and a few poses that would cover them.
-- Holds (method.md §1): each block's duration against the shortest block the detector kept
-  (its ``min_len``, chosen from the data or given), and the still stretches too short to count.
+- Holds (method.md §1): how long each pose was held still (its block and the detector's
+  window around it) against the shortest hold that makes a block (the detector's ``min_len``
+  and window, chosen from the data or given), the holds too short to count, named by time,
+  and one advised hold (ADVISED_HOLD_S) for every recording.
 - Turns (method.md §4, M5): each motion between consecutive blocks, its integrated rotation
   angle (calibrated gyroscope), how far it moved gravity, and its peak rate against a limit:
   a fraction of the gyroscope's full scale where that is known, and the rotation per sample
@@ -20,31 +22,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imucal.numerics.directions import distinct_orientations
+from imucal.numerics.directions import DISTINCT_ANGLE_DEG, distinct_orientations
 from imucal.session import Session
 from imucal.stages.accel_cv import COVERAGE_ANGLE_DEG, axis_words, coverage
 from imucal.stages.detect import Detection
-from imucal.stages.gyro import GyroFit
+from imucal.stages.gyro import MAX_STEP_DEG, GyroFit, small_turns_text
 from imucal.stages.gyro_transitions import angle_between, transition_samples
 from imucal.stages.quality import row_norms
 from imucal.stages.saturation import CHUNK_ROWS, axis_saturated_runs
 
-# A block shorter than this many times the detector's minimum is "near the minimum": a
-# slightly stricter detector (smaller k, a longer window) drops it, and its mean averages the
-# noise over few samples.
+# A block shorter than this many times the detector's shortest is "near the minimum" (its
+# hold near the shortest that counts): a slightly stricter detector (smaller k, a longer
+# window) drops it, and its mean averages the noise over few samples.
 NEAR_MIN_FACTOR = 1.5
+# The hold advised to every user, whatever the file (the README's 2-4 s): on every shared
+# recording and the sample the shortest hold that counts is 1-2 s, and 3 s clears 1.5 times
+# that. Only a detector that needs longer (a window given by hand) raises it.
+ADVISED_HOLD_S = 3.0
 # A turn that moves gravity less than this lands in the same pose: the spacing at which
-# imucal.numerics.directions.distinct_orientations counts two poses as distinct.
-MIN_TILT_DEG = 15.0
+# imucal.numerics.directions.distinct_orientations counts two poses as distinct. The gyroscope
+# fit's warning (imucal.stages.gyro) and the viewer use this same value.
+MIN_TILT_DEG = DISTINCT_ANGLE_DEG
+# Times listed in a sentence ("at 12.3, 40.1 s and 14 more"): the rest are in the viewer.
+TIMES_LISTED = 6
 # Peak rate limit where the full scale is known: this fraction of it leaves a margin before
 # the gyroscope clips (a clipped turn is left out of the fit, method.md §4).
 FULL_SCALE_FRACTION = 0.8
-# Rotation per gyroscope sample M5's integrator (RK4, the rate at a half step the mean of the
-# neighbours) carries without visible error. Measured with imucal.synth turns (minimum jerk,
-# true model, no noise): the gravity prediction error at 100 Hz is 0.0009 deg median at 8 deg
-# per sample, 0.005 at 12.6 and 0.07 at 31 (140 Hz: 0.0018 deg at 9 deg per sample); 10 deg per
-# sample keeps it near 0.01 deg, far below a good fit's 0.05-0.1 deg.
-MAX_STEP_DEG = 10.0
 ORIENTATIONS_NEEDED = 9  # M2 has 9 parameters (method.md §3)
 # Coverage called strong: a stray test direction or two at the meeting of three caps leaves no
 # parameter undetermined (the suggestion still names the pose that would reach them).
@@ -68,16 +71,22 @@ class PoseGuide:
 
 @dataclass(frozen=True)
 class HoldGuide:
-    """Each still block's duration against the detector's minimum."""
+    """How long each pose was held, against the shortest hold that counts."""
 
     duration_s: np.ndarray  # (B,) samples in the block / accelerometer rate
-    min_s: float  # the detector's min_len in seconds
+    min_s: float  # the detector's min_len in seconds (the shortest block)
     min_len: int  # samples
     min_source: str  # "chosen from the data" or "given"
-    near_min: np.ndarray  # (B,) bool: shorter than NEAR_MIN_FACTOR * min_s
+    hold_s: np.ndarray  # (B,) each pose's hold: its block and the window's edges, s
+    start_s: np.ndarray  # (B,) when each hold starts, s (its block's first sample)
+    count_s: float  # the shortest hold that makes a block: min_len + window - 1 samples, s
+    near_min: np.ndarray  # (B,) bool: held less than near_s
+    near_s: float  # the hold whose block is NEAR_MIN_FACTOR x the shortest block, s
     short_holds: int  # still stretches the detector saw but too short for a block
-    min_hold_s: float | None  # the shortest still stretch that makes a block, s
-    recommended_s: float  # a hold that makes a block clear of NEAR_MIN_FACTOR x the minimum
+    short_at_s: np.ndarray  # (short_holds,) when each starts, s (empty where unknown)
+    min_hold_s: float | None  # the shortest still stretch that makes a block at the
+    #                           shortest window the detector tried, s (what it counted with)
+    recommended_s: float  # the hold advised: ADVISED_HOLD_S, or longer if the detector needs
 
 
 @dataclass(frozen=True)
@@ -96,6 +105,7 @@ class TurnGuide:
     fast: np.ndarray  # (K,) bool: peak_rate above rate_limit
     small: np.ndarray  # (K,) bool: tilt below min_tilt_deg
     saturated: np.ndarray  # (K,) bool: left out of the gyroscope fit (clipped samples)
+    limit_brief: str = ""  # rate_limit's source in a few plain words, for the sentence
 
 
 @dataclass(frozen=True)
@@ -120,7 +130,7 @@ def recording_guide(session: Session, det: Detection, block_times: np.ndarray,
     ``gyro_rows(lo, hi)`` the calibrated gyroscope's rows (None without a gyroscope), read a
     chunk at a time."""
     poses = _poses(gravity)
-    holds = _holds(session, det)
+    holds = _holds(session, det, block_times)
     turns = _turns(session, block_times, poses.gravity, gyro_fits, gyro_rows)
     strong, weak, todo = _verdict(poses, holds, turns)
     return Guide(poses=poses, holds=holds, turns=turns, strong=strong, weak=weak,
@@ -148,20 +158,48 @@ def suggest_poses(missing: np.ndarray, limit: int = MAX_SUGGESTED) -> np.ndarray
     return np.array(out).reshape(-1, 3)
 
 
-def _holds(session: Session, det: Detection) -> HoldGuide:
+def _holds(session: Session, det: Detection, block_times: np.ndarray) -> HoldGuide:
     rate = session.acc_rate
     duration = (det.blocks[:, 1] - det.blocks[:, 0]) / rate
     min_s = det.min_len / rate
+    # M1 is still over a window around each sample: a hold makes a block window - 1 samples
+    # shorter than itself (method.md §1), so the hold that counts is min_len + window - 1.
+    edges = (det.window - 1) / rate
+    count_s = min_s + edges
     tun = det.tuning
     source = ("chosen from the data" if tun is not None and "min_len" in tun.tuned
               else "given")
-    min_hold = tun.min_hold_s if tun is not None else None
+    starts = None if tun is None else tun.short_hold_starts
+    short_at = (np.zeros(0) if starts is None or not len(starts)
+                else np.asarray(session.t_acc[np.asarray(starts)], dtype=float))
+    near_s = NEAR_MIN_FACTOR * min_s + edges
+    # One advice for every file: ADVISED_HOLD_S, or (rounded up to half seconds) what keeps a
+    # hold clear of the minimum where this detector needs more.
+    need = np.ceil(near_s * 2) / 2
+    hold = duration + edges
     return HoldGuide(duration_s=duration, min_s=min_s, min_len=int(det.min_len),
-                     min_source=source, near_min=duration < NEAR_MIN_FACTOR * min_s,
+                     min_source=source, hold_s=hold,
+                     start_s=np.asarray(block_times[:, 0], dtype=float).copy(),
+                     count_s=float(count_s), near_min=duration < NEAR_MIN_FACTOR * min_s,
+                     near_s=float(near_s),
                      short_holds=tun.short_holds if tun is not None else 0,
-                     min_hold_s=min_hold,
-                     # a hold of min_hold_s makes a block of min_s (the window's edges)
-                     recommended_s=(min_hold or min_s) + (NEAR_MIN_FACTOR - 1) * min_s)
+                     short_at_s=short_at, min_hold_s=tun.min_hold_s if tun is not None else None,
+                     recommended_s=float(max(ADVISED_HOLD_S, need)))
+
+
+def at_times(t: np.ndarray, limit: int = TIMES_LISTED) -> str:
+    """"at 12.3, 40.1 and 55.0 s" ("... s and 14 more"): when things happened, for a
+    sentence."""
+    t = np.sort(np.asarray(t, dtype=float))
+    shown = [f"{x:.1f}" for x in t[:limit]]
+    if not shown:
+        return ""
+    more = len(t) - len(shown)
+    if more:
+        return f"at {', '.join(shown)} s and {more} more"
+    if len(shown) == 1:
+        return f"at {shown[0]} s"
+    return f"at {', '.join(shown[:-1])} and {shown[-1]} s"
 
 
 def _peak_rates(rows: Callable[[int, int], np.ndarray], starts: np.ndarray, ends: np.ndarray,
@@ -211,15 +249,16 @@ def _turns(session: Session, block_times: np.ndarray, u: np.ndarray,
         saturated[b0:b0 + n] = fit.excluded
     full, full_src = gyro_full_scale(session, gyro_fits[0][1])
     step_limit = np.radians(MAX_STEP_DEG) * float(session.gyro_rate)
-    limit, src = step_limit, (f"{MAX_STEP_DEG:g} deg per sample at {session.gyro_rate:.4g} Hz, "
-                              "what M5's integration carries without visible error")
+    brief = f"{MAX_STEP_DEG:g} deg per sample at {session.gyro_rate:.4g} Hz"
+    limit, src = step_limit, f"{brief}, what M5's integration carries without visible error"
     if full is not None and FULL_SCALE_FRACTION * full < step_limit:
         limit = FULL_SCALE_FRACTION * full
+        brief = f"{FULL_SCALE_FRACTION:.0%} of the gyroscope's full scale"
         src = f"{FULL_SCALE_FRACTION:.0%} of the full scale, {full_src}"
     return TurnGuide(times=np.column_stack([t[s], t[e]]), angle_deg=angle, tilt_deg=tilt,
                      peak_rate=peak, rate_limit=float(limit), limit_source=src, full_scale=full,
                      full_scale_source=full_src, min_tilt_deg=MIN_TILT_DEG, fast=peak > limit,
-                     small=tilt < MIN_TILT_DEG, saturated=saturated)
+                     small=tilt < MIN_TILT_DEG, saturated=saturated, limit_brief=brief)
 
 
 def gyro_full_scale(session: Session, fit: GyroFit) -> tuple[float | None, str]:
@@ -289,18 +328,25 @@ def _judge_poses(poses: PoseGuide, strong: list[str], weak: list[str], todo: lis
 
 def _judge_holds(holds: HoldGuide, strong: list[str], weak: list[str], todo: list[str]
                  ) -> None:
-    med = float(np.median(holds.duration_s)) if len(holds.duration_s) else float("nan")
+    """One minimum (the shortest hold that counts), one advice (``recommended_s``), and the
+    holds that fall short named by when they start."""
+    med = float(np.median(holds.hold_s)) if len(holds.hold_s) else float("nan")
     n_near = int(holds.near_min.sum())
-    blocks = (f"{len(holds.duration_s)} still blocks, median {med:.2g} s against a minimum of "
-              f"{holds.min_s:.2g} s ({holds.min_source})")
+    poses = (f"{len(holds.hold_s)} poses held still {med:.2g} s at the median; a hold counts "
+             f"from {holds.count_s:.2g} s")
     if not (n_near or holds.short_holds):
-        strong.append(blocks)
+        strong.append(poses)
         return
-    parts = [f"{n_near} within {NEAR_MIN_FACTOR:g}x of the minimum"] if n_near else []
+    parts = []
     if holds.short_holds:
-        parts.append(f"{holds.short_holds} holds too short to count")
-    weak.append(f"{blocks}: {', '.join(parts)}")
-    todo.append(f"hold each pose still for {holds.recommended_s:.2g} s or more")
+        when = at_times(holds.short_at_s)
+        parts.append(f"{holds.short_holds} shorter holds did not count"
+                     + (f" ({when})" if when else ""))
+    if n_near:
+        parts.append(f"{n_near} barely counted, held under {holds.near_s:.2g} s "
+                     f"({at_times(holds.start_s[holds.near_min])})")
+    weak.append(f"{poses}: {'; '.join(parts)}")
+    todo.append(f"hold each pose still for {holds.recommended_s:g} s or more")
 
 
 def _judge_turns(turns: TurnGuide, strong: list[str], weak: list[str], todo: list[str]
@@ -308,8 +354,10 @@ def _judge_turns(turns: TurnGuide, strong: list[str], weak: list[str], todo: lis
     K = len(turns.peak_rate)
     if K == 0:
         return
-    turn = (f"{K} turns, peak rate up to {turns.peak_rate.max():.3g} rad/s against a limit "
-            f"of {turns.rate_limit:.3g} rad/s ({turns.limit_source})")
+    # In plain words; the limit's full source (M5's integration, the clipping level) is in
+    # calib.json's guide.turn_rate_limit_source and the viewer's guide info.
+    turn = (f"{K} turns, the fastest at {turns.peak_rate.max():.3g} rad/s against a limit "
+            f"of {turns.rate_limit:.3g} rad/s ({turns.limit_brief or turns.limit_source})")
     n_fast, n_small, n_sat = (int(turns.fast.sum()), int(turns.small.sum()),
                               int(turns.saturated.sum()))
     if n_fast or n_sat:
@@ -320,8 +368,7 @@ def _judge_turns(turns: TurnGuide, strong: list[str], weak: list[str], todo: lis
     else:
         strong.append(turn)
     if n_small:
-        weak.append(f"{n_small} of {K} turns move gravity less than {MIN_TILT_DEG:g} deg "
-                    "(they land in the same pose and tell the gyroscope little)")
+        weak.append(small_turns_text(n_small, K) + f" ({at_times(turns.times[turns.small, 0])})")
         todo.append(f"tilt {MIN_TILT_DEG:g} deg or more between consecutive poses")
 
 
@@ -333,7 +380,9 @@ def guide_summary(guide: Guide) -> dict:
     h, t = guide.holds, guide.turns
     return {"orientations": guide.poses.orientations, "coverage": f(guide.poses.coverage),
             "min_block_s": f(h.min_s), "min_block_source": h.min_source,
+            "min_hold_s": f(h.count_s), "advised_hold_s": f(h.recommended_s),
             "blocks_near_minimum": int(h.near_min.sum()), "short_holds": h.short_holds,
+            "short_holds_at_s": [float(x) for x in h.short_at_s],
             "turn_rate_limit_rad_s": f(t.rate_limit), "turn_rate_limit_source": t.limit_source,
             "gyro_full_scale_rad_s": f(t.full_scale), "turns_over_limit": int(t.fast.sum()),
             "turns_under_min_tilt": int(t.small.sum()), "strong": list(guide.strong),

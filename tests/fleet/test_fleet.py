@@ -120,9 +120,20 @@ def test_batch_on_a_local_cluster(fleet, capsys) -> None:
             assert calib["source"]["sha256"] == row["sha256"]
             assert calib["spec"]["pass"] is row["spec_pass"]
             assert calib["spec"]["broken"] == row["spec_broken"]
+            # One verdict, the spec folded in: the table's is the file's.
+            assert calib["verdict"]["level"] == row["verdict"]
+            assert calib["verdict"]["reason"] == row["verdict_reason"]
+            assert calib["verdict"]["spec"]["broken"] == row["spec_broken"]
+            assert (row["verdict"] == "not usable") is (name == OUT_OF_SPEC), row
     broken = rows[OUT_OF_SPEC]["spec_broken"]
     assert len(broken) == 1 and broken[0].startswith("acc_bias_mg: b_x = 12")
     assert "devB/2024-05-03_s: acc_bias_mg: b_x = 12" in out
+    reason = rows[OUT_OF_SPEC]["verdict_reason"]
+    assert reason == f"out of the limits of {root / 'limits.toml'}: {broken[0]}"
+    levels = [r["verdict"] for r in rows.values() if r["status"] == "ok"]
+    assert (f"verdict         {levels.count('good')} good, "
+            f"{levels.count('usable with caveats')} usable with caveats, 1 not usable") in out
+    assert f"  - devB/2024-05-03_s: {reason}; next: " in out
 
 
 def test_rerun_skips_everything_and_force_redoes(fleet, capsys) -> None:

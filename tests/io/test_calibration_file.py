@@ -52,30 +52,54 @@ def test_save_load_apply_gives_the_run_s_own_signal(run, tmp_path):
 
 def test_a_future_version_migrates_an_old_file(run, monkeypatch):
     _, result = run
-    v1 = cf.calibration_to_dict(result.calibration)
+    v2 = cf.calibration_to_dict(result.calibration)
+    assert v2["format_version"] == cf.FORMAT_VERSION == 2
 
-    def v1_to_v2(d: dict) -> dict:  # e.g. version 2 renames |g| to "gravity"
+    def v2_to_v3(d: dict) -> dict:  # e.g. version 3 renames |g| to "gravity"
         d = dict(d)
         d["units"] = dict(d["units"])
         d["units"]["gravity"] = d["units"].pop("g")
         return d
 
-    def v2_from_dict(d: dict) -> Calibration:
+    def v3_from_dict(d: dict) -> Calibration:
         d = dict(d)
         d["units"] = dict(d["units"])
         d["units"]["g"] = d["units"].pop("gravity")
         return original(d)
 
     original = Calibration.from_dict
-    monkeypatch.setattr(cf, "FORMAT_VERSION", 2)
-    monkeypatch.setitem(cf.MIGRATIONS, 1, v1_to_v2)
-    monkeypatch.setattr(Calibration, "from_dict", staticmethod(v2_from_dict))
-    migrated = cf.migrate(json.loads(json.dumps(v1)))
-    assert migrated["format_version"] == 2 and "gravity" in migrated["units"]
-    cal = cf.calibration_from_dict(json.loads(json.dumps(v1)))
+    monkeypatch.setattr(cf, "FORMAT_VERSION", 3)
+    monkeypatch.setitem(cf.MIGRATIONS, 2, v2_to_v3)
+    monkeypatch.setattr(Calibration, "from_dict", staticmethod(v3_from_dict))
+    migrated = cf.migrate(json.loads(json.dumps(v2)))
+    assert migrated["format_version"] == 3 and "gravity" in migrated["units"]
+    cal = cf.calibration_from_dict(json.loads(json.dumps(v2)))
     assert cal.g == result.calibration.g
-    with pytest.raises(ImucalError, match="format_version 3 is not supported"):
-        cf.migrate(v1 | {"format_version": 3}, "x.json")
+    # A version-1 file goes through both steps.
+    v1 = json.loads(json.dumps(v2)) | {"format_version": 1}
+    assert cf.migrate(v1)["format_version"] == 3
+    with pytest.raises(ImucalError, match="format_version 4 is not supported"):
+        cf.migrate(v2 | {"format_version": 4}, "x.json")
+
+
+def test_a_version_1_file_numbers_its_segments_from_1_once_loaded(run, tmp_path):
+    """Version 1 wrote a warning's segment as its 0-based position; version 2 numbers segments
+    from 1 everywhere. An old file still loads, applies the same, and reads the same numbers."""
+    session, result = run
+    imucal.save_calibration(result, tmp_path / "c.json")
+    v2 = json.loads((tmp_path / "c.json").read_text())
+    assert v2["format_version"] == 2 and "verdict" in v2
+    v1 = v2 | {"format_version": 1, "warnings": [
+        {"code": "gyro_rotations_saturated", "segment": 0, "message": "m"},
+        {"code": "few_orientations", "segment": 1, "message": "m"},
+        {"code": "input", "segment": None, "message": "m"}]}
+    del v1["verdict"]
+    migrated = cf.migrate(json.loads(json.dumps(v1)))
+    assert [w["segment"] for w in migrated["warnings"]] == [1, 2, None]
+    assert migrated["format_version"] == 2 and "verdict" not in migrated
+    (tmp_path / "old.json").write_text(json.dumps(v1))
+    np.testing.assert_array_equal(imucal.load_calibration(tmp_path / "old.json").apply(
+        session).acc, result.calibrated.acc)
 
 
 @pytest.mark.parametrize("damage, field", [

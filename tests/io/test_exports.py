@@ -528,11 +528,16 @@ def test_plain_exports_round_trip_across_segments(two, fmt, tmp_path):
 
 def test_one_model_formats_need_a_segment_when_there_are_several(two, tmp_path):
     path = two[0]
-    with pytest.raises(imucal.ImucalError, match="--segment 1..2"):
+    segs = json.loads(path.read_text())["segments"]
+    listed = ", ".join(f"{i} ({s['t_start']:.1f}-{s['t_end']:.1f} s)"
+                       for i, s in enumerate(segs, start=1))
+    with pytest.raises(imucal.ImucalError, match="choose one with --segment N") as e:
         export(path, "px4", tmp_path / "p")
+    assert listed in str(e.value) and not (tmp_path / "p").exists()
     res = export(path, "px4", tmp_path / "p", segment=2)
     assert any("segment 2 of 2" in n for n in res.notes)
-    with pytest.raises(imucal.ImucalError, match="segment 3 does not exist"):
+    with pytest.raises(imucal.ImucalError, match=f"segment 3 does not exist; the segments are "
+                                                  f"{re.escape(listed)}"):
         export(path, "imu_tk", tmp_path / "q", segment=3)
 
 

@@ -83,12 +83,12 @@ def test_every_entity_with_the_rows_logged(run):
         assert in_file.get(path) == n, path
     # What log_result reports having sent is what the file holds, entity by entity.
     assert {p: n for p, n in in_file.items() if n} == run.rows
-    for static in (P.SUMMARY, P.INFO, P.QUALITY, P.calibration(0, "accelerometer"),
-                   P.calibration(0, "gyroscope"), P.LCURVE_POINTS, P.LCURVE_CORNER,
+    for static in (P.SUMMARY, P.INFO, P.QUALITY, P.calibration(1, "accelerometer"),
+                   P.calibration(1, "gyroscope"), P.LCURVE_POINTS, P.LCURVE_CORNER,
                    P.LAMBDA_STATIC_RMS, P.LAMBDA_STATIC_MAX, P.LAMBDA_CHOSEN,
                    P.series(P.LAMBDA_SCALE, "s_x"),
-                   P.iteration_series("segment_0", "accelerometer", "log10_cost", "cost"),
-                   P.iteration_series("segment_0", "gyroscope", "bias", "b_z"), P.GRAVITY_AXES):
+                   P.iteration_series("segment_1", "accelerometer", "log10_cost", "cost"),
+                   P.iteration_series("segment_1", "gyroscope", "bias", "b_z"), P.GRAVITY_AXES):
         assert in_file.get(static) == 0, static  # static: drawn whatever the timeline
 
 
@@ -165,7 +165,7 @@ def test_lambda_sweep_agrees_with_the_calibration(run):
 def test_iteration_traces_end_at_the_solution(run):
     r = run.result
     acc, gyro = r.segments[0].acc, r.segments[0].gyro
-    x, y, v = _plotted(run.path, P.iteration_series("segment_0", "accelerometer", "log10_cost",
+    x, y, v = _plotted(run.path, P.iteration_series("segment_1", "accelerometer", "log10_cost",
                                                     "cost"))
     np.testing.assert_array_equal(x, np.arange(len(acc.report.trace_cost)))
     np.testing.assert_array_equal(v["step"], x)
@@ -174,27 +174,27 @@ def test_iteration_traces_end_at_the_solution(run):
     np.testing.assert_allclose(y, np.log10(acc.report.trace_cost), rtol=1e-6)
     plot = P.iteration("accelerometer", "scale")
     np.testing.assert_allclose(_params(run.path, plot,
-                                       [f"segment_0/{n}" for n in ("s_x", "s_y", "s_z")])[-1],
+                                       [f"segment_1/{n}" for n in ("s_x", "s_y", "s_z")])[-1],
                                acc.model.K, rtol=1e-6)  # float32 positions
     gscale = _params(run.path, P.iteration("gyroscope", "scale"),
-                     [f"segment_0/{n}" for n in GYRO_PARAM_NAMES[6:9]])
+                     [f"segment_1/{n}" for n in GYRO_PARAM_NAMES[6:9]])
     np.testing.assert_allclose(gscale[-1], gyro.model.K, rtol=1e-6)
     gmis = _params(run.path, P.iteration("gyroscope", "misalignment"),
-                   [f"segment_0/{n}" for n in GYRO_PARAM_NAMES[0:6]])
+                   [f"segment_1/{n}" for n in GYRO_PARAM_NAMES[0:6]])
     np.testing.assert_allclose(gmis[-1], gyro_theta(gyro.model)[:6], atol=1e-7)
 
 
 def test_parameters_and_quality_as_plain_values(run):
     r = run.result
     seg = r.segments[0]
-    acc = rb.values(run.path, P.calibration(0, "accelerometer"))
+    acc = rb.values(run.path, P.calibration(1, "accelerometer"))
     np.testing.assert_array_equal(np.reshape(acc["T"], (3, 3)), seg.acc.model.T)
     np.testing.assert_array_equal(acc["K"], seg.acc.model.K)
     np.testing.assert_array_equal(acc["b"], seg.acc.model.b)
     np.testing.assert_array_equal(acc["params"], acc_theta(seg.acc.model))
     np.testing.assert_array_equal(acc["std"], seg.acc.std)
     assert acc["param_names"][3] == "s_x" and acc["lambda"] == seg.acc.lam
-    gyro = rb.values(run.path, P.calibration(0, "gyroscope"))
+    gyro = rb.values(run.path, P.calibration(1, "gyroscope"))
     np.testing.assert_array_equal(np.reshape(gyro["T"], (3, 3)), seg.gyro.model.T)
     np.testing.assert_array_equal(gyro["b"], seg.gyro.model.b)
     q = rb.values(run.path, P.QUALITY)
@@ -205,7 +205,8 @@ def test_parameters_and_quality_as_plain_values(run):
     info = rb.values(run.path, P.INFO)
     assert info["n_warnings"] == len(r.warnings)
     if r.warnings:
-        assert info["warnings"] == [w.text for w in r.warnings]
+        # one warning reads back as a bare string (an array of one)
+        assert list(np.atleast_1d(info["warnings"])) == [w.text for w in r.warnings]
 
 
 def test_summary_is_a_markdown_table(run):
@@ -272,7 +273,7 @@ def test_rows_read_back_are_the_cores_arrays(run):
             ("gyroscope", "misalignment", GYRO_PARAM_NAMES[0:6], gyro.trace_params[:, 0:6]),
             ("gyroscope", "scale", GYRO_PARAM_NAMES[6:9], gyro.trace_params[:, 6:9]),
             ("gyroscope", "bias", ("b_x", "b_y", "b_z"), gyro.trace_bias)):
-        v = _params(run.path, P.iteration(sensor, what), [f"segment_0/{n}" for n in names])
+        v = _params(run.path, P.iteration(sensor, what), [f"segment_1/{n}" for n in names])
         np.testing.assert_allclose(v, expected, rtol=1e-6, atol=1e-9,  # float32 positions
                                    err_msg=f"{sensor} {what}")
 
@@ -376,13 +377,15 @@ def test_two_segments_accelerometer_only_and_raw_counts(tmp_path):
     assert len(r.segments) == 2
     rec = _record(r, tmp_path / "two.rrd")
     ents = rb.entities(rec.path)
-    for p in (P.lcurve_segment(0) + "_corner", P.lcurve_segment(1),
+    # Segments numbered from 1 in the recording too, as the CLI prints them.
+    for p in (P.lcurve_segment(1) + "_corner", P.lcurve_segment(2),
               P.iteration_series("whole", "accelerometer", "scale", "s_x"),
-              P.iteration_series("segment_1", "gyroscope", "scale", "s_z"),
-              P.calibration(1, "gyroscope")):
+              P.iteration_series("segment_2", "gyroscope", "scale", "s_z"),
+              P.calibration(2, "gyroscope")):
         assert p in ents, p
     _, states = rb.column(rec.path, P.DETECTOR_SEGMENTS, "StateChange:state")
-    assert [s[0] for s in states] == ["segment 0", "between segments", "segment 1", ""]
+    assert [s[0] for s in states] == ["segment 1", "between segments", "segment 2", ""]
+    assert P.lcurve_segment(0) not in ents and P.calibration(0, "gyroscope") not in ents
 
     acc_only = Session(acc=s.acc, t_acc=s.t_acc, acc_unit="g")
     r = imucal.calibrate(acc_only, lam=0.01, single_segment=True)

@@ -41,18 +41,21 @@ class ExportInput:
         return all(s.gyro is not None for s in self.calibration.segments)
 
     def segment(self, index: int | None, fmt: str) -> tuple[int, SegmentModels]:
-        """The one segment a single-model format takes (``index`` 1-based, as the CLI)."""
+        """The one segment a single-model format takes: ``index`` its number from 1, as
+        ``imucal calibrate`` prints it (:attr:`imucal.result.Segment.number`). Several segments
+        and no index is refused with the list of them and their times: a one-model file made
+        from the wrong segment would be flashed without a word."""
         segs = self.calibration.segments
         if index is None:
             if len(segs) > 1:
                 raise ImucalError(f"the calibration has {len(segs)} segments and {fmt} holds "
-                                  f"one model; choose one with --segment 1..{len(segs)} (the c, "
-                                  "json and yaml exports keep them all)", source=str(self.path),
-                                  field="segments")
+                                  f"one model; choose one with --segment N: "
+                                  f"{segment_list(segs)} (the c, json and yaml exports keep "
+                                  "them all)", source=str(self.path), field="segments")
             index = 1
         if not 1 <= index <= len(segs):
-            raise ImucalError(f"segment {index} does not exist (1..{len(segs)})",
-                              source=str(self.path), field="segments")
+            raise ImucalError(f"segment {index} does not exist; the segments are "
+                              f"{segment_list(segs)}", source=str(self.path), field="segments")
         return index, segs[index - 1]
 
     def header_lines(self) -> list[str]:
@@ -66,6 +69,13 @@ class ExportInput:
                      f"{cal.gyro_unit_raw or 'none'}; calibrated: accelerometer {cal.acc_unit} "
                      f"(|g| = {cal.g:g}), gyroscope rad/s")
         return lines
+
+
+def segment_list(segments: tuple[SegmentModels, ...]) -> str:
+    """"1 (0.0-90.2 s), 2 (95.1-180.0 s)": each segment's number and its times, on the
+    calibration session's clock."""
+    return ", ".join(f"{i} ({s.t_start:.1f}-{s.t_end:.1f} s)"
+                     for i, s in enumerate(segments, start=1))
 
 
 @dataclass
