@@ -1,0 +1,610 @@
+"""ROS 1 bags, ROS 2 bags (a ``.db3`` SQLite file, an ``.mcap`` file, or a bag directory with
+``metadata.yaml``) and MCAP files, read with ``rosbags``: every ``sensor_msgs/msg/Imu``,
+``MagneticField`` and ``Temperature`` topic becomes streams (an Imu topic gives an ``acc`` and a
+``gyro`` stream; method.md §0: a stream is the sensor as the source states it).
+
+Speed: rosbags' per-message deserializer costs tens of microseconds a message. These three
+messages have a fixed layout once the length of ``header.frame_id`` is known, so the raw bytes
+of a topic are grouped by message length into (messages, bytes) matrices and each field read
+as a strided column (:func:`_layout` computes the offsets from the typestore's own message
+definition: CDR alignment for ROS 2, packed little-endian for ROS 1). rosbags' deserializer
+stays the reference (tests compare the two) and the fallback for whatever the fast path does
+not cover (a big-endian CDR message, an unexpected length, a message type with a sequence).
+
+Storage is read the same way rosbags reads it, with less per-message Python: a ``.db3`` topic
+by one SQL query, an indexed MCAP file chunk by chunk through its message indexes (numpy
+gathers the message records), a ROS 1 bag and anything else through rosbags' ``messages()``.
+Only the topics ``keep`` accepts are read at all.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import struct
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from imucal.errors import ImucalError, plural
+from imucal.streams import Stream, StreamSet
+
+IMU = "sensor_msgs/msg/Imu"
+MAG = "sensor_msgs/msg/MagneticField"
+TEMP = "sensor_msgs/msg/Temperature"
+# message type -> (kind, the message's field, its covariance field or None, unit)
+SENSORS: dict[str, tuple[tuple[str, str, str | None, str], ...]] = {
+    IMU: (("acc", "linear_acceleration", "linear_acceleration_covariance", "m/s^2"),
+          ("gyro", "angular_velocity", "angular_velocity_covariance", "rad/s")),
+    # sensor_msgs/MagneticField states tesla; sensor_msgs/Temperature degrees Celsius.
+    MAG: (("mag", "magnetic_field", None, "T"),),
+    TEMP: (("temp", "temperature", None, "degC"),),
+}
+# REP 103: a body frame is x forward, y left, z up. It is the convention ROS states; nothing in
+# a bag proves a driver followed it.
+FRAME = "FLU (ROS REP 103)"
+FORMAT_NAMES = {"ros1": "ROS 1 bag", "ros2": "ROS 2 bag", "mcap": "MCAP"}
+_VECTOR = ("x", "y", "z")
+_SIZES = {"bool": 1, "byte": 1, "char": 1, "int8": 1, "uint8": 1, "int16": 2, "uint16": 2,
+          "int32": 4, "uint32": 4, "int64": 8, "uint64": 8, "float32": 4, "float64": 8}
+_DTYPES = {"bool": "u1", "byte": "u1", "char": "u1", "int8": "i1", "uint8": "u1", "int16": "<i2",
+           "uint16": "<u2", "int32": "<i4", "uint32": "<u4", "int64": "<i8", "uint64": "<u8",
+           "float32": "<f4", "float64": "<f8"}
+_CHUNK = 1 << 20
+
+
+class _NotFixed(Exception):
+    """The message cannot be read by offsets (a sequence, a second string, an odd length)."""
+
+
+# --- layout: where each field sits, from the typestore's message definition -----------------
+
+def _layout(fielddefs: dict[str, Any], msgtype: str, strlen: int | None, cdr: bool,
+            ) -> tuple[dict[str, tuple[int, str, int]], int]:
+    """``path -> (byte offset, numpy dtype, count)`` of every primitive field of ``msgtype``
+    and the message's length, for a message whose one string (``header.frame_id``) has the
+    wire length ``strlen`` (None: stop at the string, giving the offset of its length prefix).
+
+    CDR (ROS 2): 4 bytes of encapsulation header, then each primitive aligned to its size
+    counted from after that header, a string as uint32 length (with its NUL) and bytes. ROS 1:
+    packed, a string's length without a NUL."""
+    base = 4 if cdr else 0
+    out: dict[str, tuple[int, str, int]] = {}
+    pos = 0
+    strings = 0
+
+    def align(n: int) -> None:
+        nonlocal pos
+        if cdr:
+            pos += -pos % n
+
+    def walk(typ: str, prefix: str) -> bool:
+        nonlocal pos, strings
+        for name, (node, detail) in fielddefs[typ][1]:
+            path = f"{prefix}{name}"
+            if node == 1:  # a primitive or a string
+                tname = detail[0]
+                if tname == "string":
+                    align(4)
+                    out[path + "#len"] = (base + pos, "<u4", 1)
+                    strings += 1
+                    if strlen is None:
+                        return False
+                    if strings > 1:
+                        raise _NotFixed(f"{msgtype} holds more than one string")
+                    pos += 4
+                    out[path] = (base + pos, "u1", strlen)
+                    pos += strlen
+                    continue
+                if tname not in _SIZES:
+                    raise _NotFixed(f"{msgtype}.{path} is a {tname}")
+                align(_SIZES[tname])
+                out[path] = (base + pos, _DTYPES[tname], 1)
+                pos += _SIZES[tname]
+            elif node == 2:  # a nested message
+                if not walk(detail, path + "."):
+                    return False
+            elif node == 3 and detail[0][0] == 1 and detail[0][1][0] in _SIZES:
+                tname, count = detail[0][1][0], detail[1]
+                align(_SIZES[tname])
+                out[path] = (base + pos, _DTYPES[tname], count)
+                pos += _SIZES[tname] * count
+            else:
+                raise _NotFixed(f"{msgtype}.{path} has no fixed length")
+        return True
+
+    walk(msgtype, "")
+    return out, base + pos
+
+
+# --- raw messages of one topic ------------------------------------------------------------
+
+@dataclass
+class _Topic:
+    """A selected topic: its connections' ids per storage, and the messages gathered so far,
+    as (receive times, rows) pieces where rows is a (messages, bytes) uint8 matrix."""
+
+    name: str
+    msgtype: str
+    pieces: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    loose: list[tuple[int, bytes]] = field(default_factory=list)  # read one by one (fallback)
+
+    def add_blobs(self, recv: np.ndarray, blobs: list[bytes]) -> None:
+        """Messages as a list of bytes: one matrix per message length, joined in C."""
+        if not blobs:
+            return
+        lengths = np.fromiter(map(len, blobs), np.int64, len(blobs))
+        for length in np.unique(lengths):
+            sel = lengths == length
+            part = blobs if sel.all() else list(itertools.compress(blobs, sel.tolist()))
+            rows = np.frombuffer(b"".join(part), np.uint8).reshape(len(part), int(length))
+            self.pieces.append((recv[sel], rows))
+
+    def add_slices(self, recv: np.ndarray, buf: np.ndarray, starts: np.ndarray,
+                   lengths: np.ndarray) -> None:
+        """Messages as slices of one buffer (an MCAP chunk): gathered per message length."""
+        for length in np.unique(lengths):
+            sel = lengths == length
+            rows = buf[starts[sel][:, None] + np.arange(int(length))]
+            self.pieces.append((recv[sel], rows))
+
+
+# --- reading the storages ------------------------------------------------------------------
+
+def _rosbags_messages(reader: Any, conns: list[Any], topics: dict[str, _Topic]) -> None:
+    """Any storage through rosbags' own ``messages()`` (ROS 1 chunks, compressed messages,
+    unindexed MCAP): one Python step per message, the bytes kept as they come."""
+    recv: dict[str, list[int]] = {}
+    blobs: dict[str, list[bytes]] = {}
+    for conn, stamp, raw in reader.messages(connections=conns):
+        recv.setdefault(conn.topic, []).append(stamp)
+        blobs.setdefault(conn.topic, []).append(bytes(raw))
+    for name, b in blobs.items():
+        topics[name].add_blobs(np.asarray(recv[name], np.int64), b)
+
+
+def _sqlite_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) -> None:
+    """A .db3 topic by one query: the rows come back as Python tuples from the driver, the
+    rest is numpy."""
+    for conn in conns:
+        rows = storage.dbconn.execute(
+            "SELECT timestamp, data FROM messages WHERE topic_id = ?", (conn.id,)).fetchall()
+        if rows:
+            stamps, blobs = zip(*rows)
+            topics[conn.topic].add_blobs(np.asarray(stamps, np.int64), list(blobs))
+
+
+def _mcap_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) -> None:
+    """An indexed MCAP file chunk by chunk: each chunk's message index (log time and offset
+    of every message of a channel) says where the records are; numpy reads them."""
+    from rosbags.rosbag2.storage_mcap import decompress  # validates size and CRC
+
+    bio = storage.bio
+    by_id = {c.id: c for c in conns}
+    for chunk in storage.chunks:
+        wanted = [cid for cid in chunk.message_index_offsets if cid in by_id]
+        if not wanted:
+            continue
+        bio.seek(chunk.chunk_start_offset + 9 + 24)
+        (crc,) = struct.unpack("<I", bio.read(4))
+        bio.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
+        raw = decompress(bio.read(chunk.compressed_size), chunk.compression,
+                         chunk.uncompressed_size, crc)
+        buf = np.frombuffer(raw, np.uint8)
+        for cid in wanted:
+            bio.seek(chunk.message_index_offsets[cid])
+            op, _, channel, size = struct.unpack("<BQHI", bio.read(15))
+            if op != 0x07 or channel != cid or size % 16:
+                raise _Corrupt(f"MCAP message index at byte {chunk.message_index_offsets[cid]} "
+                               "is not one")
+            index = np.frombuffer(bio.read(size), "<u8").reshape(-1, 2).astype(np.int64)
+            if not len(index):
+                continue
+            off = index[:, 1]
+            if off.max() + 31 > len(buf):
+                raise _Corrupt("an MCAP message index points past its chunk")
+            # Message record: opcode 0x05, uint64 length, uint16 channel, uint32 sequence,
+            # uint64 log time, uint64 publish time, then the message's bytes.
+            head = buf[off[:, None] + np.arange(31)]
+            rec_len = head[:, 1:9].copy().view("<u8")[:, 0].astype(np.int64)
+            chan = head[:, 9:11].copy().view("<u2")[:, 0]
+            if (head[:, 0] != 0x05).any() or (chan != cid).any() or (rec_len < 22).any() \
+                    or (off + 9 + rec_len > len(buf)).any():
+                raise _Corrupt("an MCAP message index does not point at its messages")
+            topics[by_id[cid].topic].add_slices(index[:, 0], buf, off + 31, rec_len - 22)
+
+
+class _Corrupt(Exception):
+    """The file's own structure is broken (turned into an ImucalError naming the file)."""
+
+
+def _open(path: Path, key: str) -> tuple[Any, list[Any]]:
+    """rosbags' reader for the format sniffed from the file's bytes, and the storage files
+    behind it for the fast paths (none: read through rosbags' ``messages()``). rosbags' own
+    Reader picks a single file's storage by its suffix; here the magic decides, so a renamed
+    file reads the same."""
+    if key == "ros1":
+        from rosbags.rosbag1 import Reader as Reader1
+        return Reader1(path), []
+    if path.is_dir():
+        from rosbags.rosbag2 import Reader as Reader2
+        reader = Reader2(path)
+        return reader, [reader.storage]
+    from rosbags.rosbag2.storage_mcap import McapReader
+    from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+    storage = (McapReader if key == "mcap" else Sqlite3Reader)(path)
+    return storage, [storage]
+
+
+def _files(storages: list[Any]) -> list[Any]:
+    """The storage files, once open: a bag directory's own (unless each message is
+    compressed, which rosbags undoes)."""
+    out = []
+    for storage in storages:
+        if hasattr(storage, "storages"):  # a bag directory
+            if storage.metadata.compression_mode != "message":
+                out.extend(storage.storages)
+        else:
+            out.append(storage)
+    return out
+
+
+def _gather(reader: Any, storages: list[Any], selected: list[Any], topics: dict[str, _Topic],
+            ) -> None:
+    from rosbags.rosbag2.storage_mcap import McapReader
+    from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+
+    storages = _files(storages)
+    if not storages:
+        _rosbags_messages(reader, selected, topics)
+        return
+    wanted = {(c.topic, c.msgtype) for c in selected}
+    for storage in storages:
+        conns = [c for c in storage.connections if (c.topic, c.msgtype) in wanted]
+        if not conns:
+            continue
+        if isinstance(storage, Sqlite3Reader):
+            _sqlite_messages(storage, conns, topics)
+        elif isinstance(storage, McapReader) and storage.chunks:
+            _mcap_messages(storage, conns, topics)
+        else:
+            _rosbags_messages(storage, conns, topics)
+
+
+# --- decoding -----------------------------------------------------------------------------
+
+@dataclass
+class _Decoded:
+    """One topic's messages decoded: header stamps and receive times (ns), each wanted
+    field's values, and the frame_ids seen."""
+
+    stamp: np.ndarray
+    recv: np.ndarray
+    fields: dict[str, np.ndarray]
+    frame_ids: list[str]
+
+
+def _wanted(msgtype: str) -> dict[str, tuple[str, ...]]:
+    """Field name -> the primitive paths that make its columns."""
+    out: dict[str, tuple[str, ...]] = {}
+    for _, fname, cov, _ in SENSORS[msgtype]:
+        out[fname] = tuple(f"{fname}.{a}" for a in _VECTOR) if fname != "temperature" \
+            else ("temperature",)
+        if cov:
+            out[cov] = (cov,)
+    return out
+
+
+def _stamp_paths(fielddefs: dict[str, Any]) -> tuple[str, str]:
+    names = [n for n, _ in fielddefs["builtin_interfaces/msg/Time"][1]]
+    return f"header.stamp.{names[0]}", f"header.stamp.{names[1]}"  # sec, nanosec (ROS 1: nsec)
+
+
+def _column(rows: np.ndarray, where: tuple[int, str, int]) -> np.ndarray:
+    """One field of every row: a strided view of the matrix, converted once."""
+    off, dtype, count = where
+    dt = np.dtype(dtype)
+    view = np.ndarray((len(rows), count), dt, buffer=rows, offset=off,
+                      strides=(rows.strides[0], dt.itemsize))
+    return view
+
+
+def _decode_rows(rows: np.ndarray, fielddefs: dict[str, Any], msgtype: str, cdr: bool,
+                 ) -> list[tuple[np.ndarray, dict[str, np.ndarray], str]]:
+    """Messages of one length decoded by offsets: (row selection, fields incl. the stamp, the
+    frame_id) per frame_id length. Raises _NotFixed where offsets cannot read them."""
+    rows = np.ascontiguousarray(rows)
+    n, length = rows.shape
+    if cdr:
+        # Encapsulation header: 0x00 0x01 is little-endian CDR (0x00 0x00 big-endian).
+        if (rows[:, 0] != 0).any() or (rows[:, 1] != 1).any():
+            raise _NotFixed("not little-endian CDR")
+    head, _ = _layout(fielddefs, msgtype, None, cdr)
+    (len_at, _, _), = [v for k, v in head.items() if k.endswith("#len")]
+    if len_at + 4 > length:
+        raise _NotFixed("shorter than its header")
+    strlens = _column(rows, (len_at, "<u4", 1))[:, 0]
+    out = []
+    for strlen in np.unique(strlens):
+        sel = strlens == strlen
+        part = rows if sel.all() else rows[sel]
+        where, total = _layout(fielddefs, msgtype, int(strlen), cdr)
+        # FastCDR pads a message to a multiple of 4 bytes; nothing else may follow.
+        if not total <= length <= total + (3 if cdr else 0):
+            raise _NotFixed(f"{length} bytes where the definition gives {total}")
+        sec, nsec = _stamp_paths(fielddefs)
+        cols = {p: _column(part, where[p]) for p in (sec, nsec)}
+        for paths in _wanted(msgtype).values():
+            for p in paths:
+                cols[p] = _column(part, where[p])
+        s_off, _, s_len = where["header.frame_id"]
+        ids = part[:, s_off:s_off + s_len]
+        if cdr and s_len:
+            ids = ids[:, :-1]  # CDR strings end in a NUL
+        if not (ids == ids[0]).all():
+            names = [bytes(u).decode("utf-8", "replace") for u in np.unique(ids, axis=0)]
+            frame = ", ".join(names)
+        else:
+            frame = bytes(ids[0]).decode("utf-8", "replace")
+        out.append((sel, cols, frame))
+    return out
+
+
+def _fields_of(cols: dict[str, np.ndarray], msgtype: str, fielddefs: dict[str, Any],
+               ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    sec, nsec = _stamp_paths(fielddefs)
+    stamp = cols[sec][:, 0].astype(np.int64) * 1_000_000_000 + cols[nsec][:, 0].astype(np.int64)
+    fields = {name: np.hstack([cols[p] for p in paths]).astype(np.float64)
+              for name, paths in _wanted(msgtype).items()}
+    return stamp, fields
+
+
+def _decode_reference(raws: Iterable[tuple[int, bytes]], typestore: Any, msgtype: str,
+                      cdr: bool) -> _Decoded:
+    """rosbags' own deserializer, message by message: the reference and the fallback."""
+    deser = typestore.deserialize_cdr if cdr else typestore.deserialize_ros1
+    stamps, recv, frames = [], [], []
+    fields: dict[str, list[Any]] = {name: [] for name in _wanted(msgtype)}
+    for t, raw in raws:
+        msg = deser(raw, msgtype)
+        stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        recv.append(t)
+        frames.append(msg.header.frame_id)
+        for name in fields:
+            value = getattr(msg, name)
+            fields[name].append(np.asarray(value, np.float64).ravel() if name.endswith("ance")
+                                else [value] if name == "temperature"
+                                else [value.x, value.y, value.z])
+    width = {name: len(_wanted(msgtype)[name]) if not name.endswith("ance") else 9
+             for name in fields}
+    return _Decoded(np.asarray(stamps, np.int64), np.asarray(recv, np.int64),
+                    {k: np.asarray(v, np.float64).reshape(-1, width[k])
+                     for k, v in fields.items()},
+                    list(dict.fromkeys(frames)))
+
+
+def _decode(topic: _Topic, typestore: Any, cdr: bool, fast: bool) -> _Decoded:
+    """A topic's pieces decoded by offsets where the layout allows, else by rosbags."""
+    fielddefs = typestore.fielddefs
+    parts: list[_Decoded] = []
+    slow: list[tuple[int, bytes]] = list(topic.loose)
+    for recv, rows in topic.pieces:
+        if not fast:
+            slow.extend(zip(recv.tolist(), map(bytes, rows)))
+            continue
+        try:
+            decoded = _decode_rows(rows, fielddefs, topic.msgtype, cdr)
+        except _NotFixed:
+            slow.extend(zip(recv.tolist(), map(bytes, rows)))
+            continue
+        for sel, cols, frame in decoded:
+            stamp, fields = _fields_of(cols, topic.msgtype, fielddefs)
+            parts.append(_Decoded(stamp, recv[sel] if not sel.all() else recv, fields, [frame]))
+    if slow:
+        parts.append(_decode_reference(slow, typestore, topic.msgtype, cdr))
+    if len(parts) == 1:
+        return parts[0]
+    names = list(_wanted(topic.msgtype))
+    return _Decoded(np.concatenate([p.stamp for p in parts]),
+                    np.concatenate([p.recv for p in parts]),
+                    {k: np.concatenate([p.fields[k] for p in parts]) for k in names},
+                    list(dict.fromkeys(f for p in parts for f in p.frame_ids)))
+
+
+# --- streams ------------------------------------------------------------------------------
+
+def _clock(topic: str, d: _Decoded) -> tuple[np.ndarray, str, list[str], np.ndarray]:
+    """Header stamps, or the receive time where every stamp of the topic is zero; sorted,
+    exact repeats dropped. Returns (ns, time source, notes, the order to take samples in)."""
+    notes: list[str] = []
+    if len(d.stamp) and not d.stamp.any():
+        ns, source = d.recv, "receive time (the bag's record time; every header stamp is zero)"
+        notes.append(f"{topic}: every header.stamp is zero; the bag's receive time is used")
+    else:
+        ns, source = d.stamp, "header.stamp"
+    order = np.argsort(ns, kind="stable")
+    if (np.diff(order) != 1).any():
+        notes.append(f"{topic}: messages were not in time order; sorted")
+        ns = ns[order]
+    keep = np.ones(len(ns), bool)
+    keep[1:] = ns[1:] != ns[:-1]
+    if not keep.all():
+        notes.append(f"{topic}: {plural(int((~keep).sum()), 'repeated stamp')} dropped "
+                     "(the first message of each stamp kept)")
+    return ns[keep], source, notes, order[keep]
+
+
+def _streams(topic: str, msgtype: str, d: _Decoded,
+             clock: tuple[np.ndarray, str, list[str], np.ndarray], origin_ns: int,
+             imu: str | None) -> list[Stream]:
+    ns, time_source, clock_notes, order = clock
+    t = (ns - origin_ns) / 1e9
+    device = d.frame_ids[0] if len(d.frame_ids) == 1 else None
+    out = []
+    for kind, fname, cov, unit in SENSORS[msgtype]:
+        values = d.fields[fname][order]
+        notes = list(clock_notes)
+        if len(d.frame_ids) > 1:
+            notes.append(f"{topic}: several header.frame_id values: {', '.join(d.frame_ids)}")
+        good = ~np.isnan(values).any(axis=1)
+        if not good.all():
+            notes.append(f"{topic}: {plural(int((~good).sum()), 'NaN sample')} of "
+                         f"{len(values)} dropped ({fname})")
+        if cov:
+            # sensor_msgs/Imu: element 0 of a covariance at -1 means "this field is not given".
+            absent = d.fields[cov][order][:, 0] == -1.0
+            if absent.any():
+                notes.append(f"{topic}: {plural(int(absent.sum()), 'message')} mark "
+                             f"{fname} absent (covariance[0] = -1); dropped")
+                good &= ~absent
+        if not good.any():
+            continue
+        out.append(Stream(
+            kind=kind, instance=topic, t=t[good] if not good.all() else t,
+            values=np.ascontiguousarray(values[good] if not good.all() else values),
+            unit=unit, origin=f"topic {topic} ({msgtype}), field {fname}",
+            frame=FRAME if kind != "temp" else None,
+            time_source=f"{time_source}, seconds after {origin_ns // 1_000_000_000} s "
+                        "(Unix time)",
+            device=device, imu=topic if msgtype == IMU else imu,
+            notes=tuple(notes)))
+    return out
+
+
+def _typestore(conns: list[Any], key: str) -> tuple[Any, list[str]]:
+    """The bag's own message definitions (as rosbags' AnyReader builds them); rosbags' stored
+    definitions where the bag has none (a ROS 2 bag before Iron)."""
+    from rosbags.interfaces import MessageDefinitionFormat as Fmt
+    from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+
+    types: dict[str, Any] = {}
+    notes = []
+    for c in conns:
+        if c.msgdef.format == Fmt.MSG:
+            types.update(get_types_from_msg(c.msgdef.data, c.msgtype))
+        elif c.msgdef.format == Fmt.IDL:
+            sep = "=" * 80 + "\n"
+            if c.msgdef.data.startswith(f"{sep}IDL: "):
+                for one in c.msgdef.data.split(sep)[1:]:
+                    types.update(get_types_from_idl(one.split("\n", 1)[1]))
+            else:
+                types.update(get_types_from_idl(c.msgdef.data))
+    store = get_typestore(Stores.EMPTY)
+    store.register(types)
+    if any(c.msgtype not in store.fielddefs for c in conns):
+        default = get_typestore(Stores.ROS1_NOETIC if key == "ros1" else Stores.LATEST)
+        missing = sorted({c.msgtype for c in conns if c.msgtype not in store.fielddefs})
+        store = get_typestore(Stores.EMPTY)
+        store.register({**default.fielddefs, **types})
+        notes.append(f"no message definition stored for {', '.join(missing)}; "
+                     "rosbags' stored definitions used")
+    return store, notes
+
+
+def _hash_soon(path: Path) -> Callable[[], str]:
+    """The SHA-256 in a thread while the bag is read (hashlib releases the GIL). A bag
+    directory hashes its files in name order."""
+    files = sorted(p for p in path.iterdir() if p.is_file()) if path.is_dir() else [path]
+
+    def run() -> str:
+        digest = hashlib.sha256()
+        for p in files:
+            with p.open("rb") as fh:
+                while chunk := fh.read(_CHUNK):
+                    digest.update(chunk)
+        return digest.hexdigest()
+
+    pool = ThreadPoolExecutor(1, thread_name_prefix="imucal-sha256")
+    future = pool.submit(run)
+    pool.shutdown(wait=False)
+    return future.result
+
+
+def _errors() -> tuple[type[BaseException], ...]:
+    """What rosbags and the storage libraries raise on a broken file."""
+    import apsw
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.rosbag1 import ReaderError as R1
+    from rosbags.rosbag2 import ReaderError as R2
+    from rosbags.serde import SerdeError
+    from rosbags.typesys import TypesysError
+
+    return (R1, R2, AnyReaderError, SerdeError, TypesysError, apsw.Error, _Corrupt,
+            struct.error, EOFError, ValueError, KeyError, IndexError, UnicodeDecodeError,
+            AssertionError)
+
+
+def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, key: str,
+                 *, fast: bool = True) -> StreamSet:
+    """Every IMU, magnetometer and thermometer topic of a ROS 1 bag, ROS 2 bag or MCAP file
+    (``key`` from :func:`imucal.io.formats.sniff`) as streams; only the topics ``keep``
+    accepts are read. ``fast=False`` decodes every message with rosbags' deserializer."""
+    name = FORMAT_NAMES[key]
+    broken = _errors()
+    digest = _hash_soon(path)
+    try:
+        reader, storages = _open(path, key)
+        reader.open()
+    except broken as err:
+        raise ImucalError(f"cannot open the {name}: {_one_line(err)}", source=source) from None
+    try:
+        conns = list(reader.connections)
+        sensors = [c for c in conns if c.msgtype in SENSORS]
+        if not sensors:
+            raise ImucalError(
+                f"the {name} has no {IMU}, {MAG} or {TEMP} topic; it holds "
+                f"{_list_topics(conns)}", source=source)
+        selected = [c for c in sensors if keep is None or keep(c.topic)]
+        topics = {c.topic: _Topic(c.topic, c.msgtype) for c in selected}
+        mixed = {c.topic for c in selected if topics[c.topic].msgtype != c.msgtype}
+        if mixed:
+            raise ImucalError(f"topic {sorted(mixed)[0]} carries two message types; expected "
+                              "one", source=source)
+        typestore, notes = _typestore(selected, key)
+        _gather(reader, storages, selected, topics)
+        decoded = {t: _decode(topic, typestore, key != "ros1", fast)
+                   for t, topic in topics.items() if topic.pieces or topic.loose}
+    except broken as err:
+        raise ImucalError(f"cannot read the {name}: {_one_line(err)}", source=source) from None
+    finally:
+        reader.close()
+
+    clocks = {t: _clock(t, d) for t, d in decoded.items()}
+    origin = min((int(c[0][0]) for c in clocks.values()), default=0)
+    origin -= origin % 1_000_000_000  # a whole second: t keeps the stamps' nanoseconds exact
+    # A magnetometer or thermometer topic belongs to the Imu topic with its frame_id, when
+    # exactly one Imu topic has it (the frame_id is how ROS names the sensor's mount).
+    imu_of_frame: dict[str, list[str]] = {}
+    for t, d in decoded.items():
+        if topics[t].msgtype == IMU and len(d.frame_ids) == 1:
+            imu_of_frame.setdefault(d.frame_ids[0], []).append(t)
+    streams: list[Stream] = []
+    for t, d in decoded.items():
+        owner = imu_of_frame.get(d.frame_ids[0], []) if len(d.frame_ids) == 1 else []
+        streams.extend(_streams(t, topics[t].msgtype, d, clocks[t], origin,
+                                owner[0] if len(owner) == 1 else None))
+    empty = [t for t in topics if t not in decoded]
+    if empty:
+        notes.append(f"{plural(len(empty), 'topic')} without messages: {', '.join(empty)}")
+    notes.append(f"times are seconds after {origin // 1_000_000_000} s (Unix time), the whole "
+                 "second before the first sample")
+    return StreamSet(source=source, format=name, streams=tuple(streams), sha256=digest(),
+                     notes=tuple(notes))
+
+
+def _list_topics(conns: list[Any], most: int = 6) -> str:
+    if not conns:
+        return "no topics"
+    pairs = list(dict.fromkeys(f"{c.topic} ({c.msgtype})" for c in conns))
+    more = f" and {len(pairs) - most} more" if len(pairs) > most else ""
+    return ", ".join(pairs[:most]) + more
+
+
+def _one_line(err: BaseException) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 200 else text[:197] + "..."
+
