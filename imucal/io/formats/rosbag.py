@@ -144,12 +144,33 @@ class _Topic:
             rows = np.frombuffer(b"".join(part), np.uint8).reshape(len(part), int(length))
             self.pieces.append((recv[sel], rows))
 
+    def add_joined(self, recv: np.ndarray, joined: bytes, lengths: np.ndarray) -> None:
+        """Messages laid end to end in one bytes object: a (messages, bytes) matrix with no
+        copy when they are all one length (the usual case), else gathered per length."""
+        buf = np.frombuffer(joined, np.uint8)
+        if len(lengths) and (lengths == lengths[0]).all():
+            self.pieces.append((recv, buf.reshape(len(lengths), int(lengths[0]))))
+            return
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        self.add_slices(recv, buf, starts, lengths)
+
     def add_slices(self, recv: np.ndarray, buf: np.ndarray, starts: np.ndarray,
                    lengths: np.ndarray) -> None:
         """Messages as slices of one buffer (an MCAP chunk): gathered per message length."""
         for length in np.unique(lengths):
             sel = lengths == length
-            rows = buf[starts[sel][:, None] + np.arange(int(length))]
+            at = starts[sel]
+            step = np.diff(at)
+            if len(at) > 1 and step[0] >= length and (step == step[0]).all():
+                # Evenly spaced (one channel, or channels in turn): a view, no copy.
+                rows = np.lib.stride_tricks.as_strided(
+                    buf[at[0]:], (len(at), int(length)), (int(step[0]), 1), writeable=False)
+                if buf.nbytes > 2 * rows.size:
+                    # A view keeps its whole chunk alive: copied when the chunk is mostly
+                    # other topics, so memory follows the selected topics, not the file.
+                    rows = np.ascontiguousarray(rows)
+            else:
+                rows = buf[at[:, None] + np.arange(int(length))]
             self.pieces.append((recv[sel], rows))
 
 
@@ -167,15 +188,40 @@ def _rosbags_messages(reader: Any, conns: list[Any], topics: dict[str, _Topic]) 
         topics[name].add_blobs(np.asarray(recv[name], np.int64), b)
 
 
+_SQL_WINDOW = 1 << 17  # message rows (of every topic) per query: bounds what one query holds
+
+
 def _sqlite_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) -> None:
-    """A .db3 topic by one query: the rows come back as Python tuples from the driver, the
-    rest is numpy."""
-    for conn in conns:
-        rows = storage.dbconn.execute(
-            "SELECT timestamp, data FROM messages WHERE topic_id = ?", (conn.id,)).fetchall()
-        if rows:
-            stamps, blobs = zip(*rows)
-            topics[conn.topic].add_blobs(np.asarray(stamps, np.int64), list(blobs))
+    """A .db3 file in windows of row ids, one query each for all selected topics: SQLite
+    concatenates a topic's messages, times and lengths itself (group_concat; one aggregate
+    walks the rows in one order for all three), so no Python object is made per message.
+    Where that cannot be trusted (a UTF-16 database, where text is converted; lengths that do
+    not add up), rows are fetched one by one."""
+    db = storage.dbconn
+    ids = {c.id: c.topic for c in conns}
+    marks = ",".join("?" * len(ids))
+    ((last,),) = db.execute("SELECT coalesce(max(id), 0) FROM messages").fetchall()
+    ((encoding,),) = db.execute("PRAGMA encoding").fetchall()
+    for lo in range(0, last + 1, _SQL_WINDOW):
+        window = (lo, lo + _SQL_WINDOW, *ids)
+        if encoding == "UTF-8":
+            rows = db.execute(
+                "SELECT topic_id, CAST(group_concat(data, x'') AS BLOB), "
+                "group_concat(timestamp), group_concat(length(data)), count(*) FROM messages "
+                f"WHERE id >= ? AND id < ? AND topic_id IN ({marks}) GROUP BY topic_id",
+                window).fetchall()
+            parsed = [(tid, blob, np.fromstring(ts, np.int64, sep=","),
+                       np.fromstring(lens, np.int64, sep=","), count)
+                      for tid, blob, ts, lens, count in rows]
+            if all(len(t) == len(n) == count and int(n.sum()) == len(blob)
+                   for _, blob, t, n, count in parsed):
+                for tid, blob, stamps, lengths, _ in parsed:
+                    topics[ids[tid]].add_joined(stamps, blob, lengths)
+                continue
+        for tid, stamp, data in db.execute(
+                "SELECT topic_id, timestamp, data FROM messages "
+                f"WHERE id >= ? AND id < ? AND topic_id IN ({marks})", window):
+            topics[ids[tid]].loose.append((stamp, data))
 
 
 def _mcap_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) -> None:
@@ -295,7 +341,7 @@ def _wanted(msgtype: str) -> dict[str, tuple[str, ...]]:
         out[fname] = tuple(f"{fname}.{a}" for a in _VECTOR) if fname != "temperature" \
             else ("temperature",)
         if cov:
-            out[cov] = (cov,)
+            out[cov] = (cov,)  # element 0 only: -1 there marks the field absent
     return out
 
 
@@ -305,21 +351,35 @@ def _stamp_paths(fielddefs: dict[str, Any]) -> tuple[str, str]:
 
 
 def _column(rows: np.ndarray, where: tuple[int, str, int]) -> np.ndarray:
-    """One field of every row: a strided view of the matrix, converted once."""
+    """One field of every row, (messages, count): a view of the matrix's columns (rows may
+    be a strided view of a chunk; each row's bytes are contiguous, so the view is allowed)."""
     off, dtype, count = where
     dt = np.dtype(dtype)
-    view = np.ndarray((len(rows), count), dt, buffer=rows, offset=off,
-                      strides=(rows.strides[0], dt.itemsize))
-    return view
+    return rows[:, off:off + dt.itemsize * count].view(dt)
+
+
+def _field(rows: np.ndarray, where: dict[str, tuple[int, str, int]], paths: tuple[str, ...],
+           ) -> np.ndarray:
+    """A field's columns as float64, (messages, k): one slice where its primitives sit side
+    by side (x, y, z of a Vector3), else stacked."""
+    first = where[paths[0]]
+    if paths[0].endswith("_covariance"):
+        return _column(rows, (first[0], first[1], 1)).astype(np.float64)  # element 0 only
+    dt = np.dtype(first[1])
+    side_by_side = all(where[p][1] == first[1] and where[p][0] == first[0] + i * dt.itemsize
+                       for i, p in enumerate(paths))
+    if side_by_side:
+        return _column(rows, (first[0], first[1], first[2] * len(paths))).astype(np.float64)
+    return np.hstack([_column(rows, where[p]) for p in paths]).astype(np.float64)
 
 
 def _decode_rows(rows: np.ndarray, fielddefs: dict[str, Any], msgtype: str, cdr: bool,
-                 ) -> list[tuple[np.ndarray, dict[str, np.ndarray], str]]:
-    """Messages of one length decoded by offsets: (row selection, fields incl. the stamp, the
-    frame_id) per frame_id length. Raises _NotFixed where offsets cannot read them."""
-    rows = np.ascontiguousarray(rows)
+                 ) -> list[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], list[str]]]:
+    """Messages of one length decoded by offsets: (row selection, header stamps in ns, the
+    wanted fields, the frame_ids) per frame_id length. Raises _NotFixed where offsets cannot
+    read them."""
     n, length = rows.shape
-    if cdr:
+    if cdr and length >= 2:
         # Encapsulation header: 0x00 0x01 is little-endian CDR (0x00 0x00 big-endian).
         if (rows[:, 0] != 0).any() or (rows[:, 1] != 1).any():
             raise _NotFixed("not little-endian CDR")
@@ -328,6 +388,7 @@ def _decode_rows(rows: np.ndarray, fielddefs: dict[str, Any], msgtype: str, cdr:
     if len_at + 4 > length:
         raise _NotFixed("shorter than its header")
     strlens = _column(rows, (len_at, "<u4", 1))[:, 0]
+    sec, nsec = _stamp_paths(fielddefs)
     out = []
     for strlen in np.unique(strlens):
         sel = strlens == strlen
@@ -336,31 +397,14 @@ def _decode_rows(rows: np.ndarray, fielddefs: dict[str, Any], msgtype: str, cdr:
         # FastCDR pads a message to a multiple of 4 bytes; nothing else may follow.
         if not total <= length <= total + (3 if cdr else 0):
             raise _NotFixed(f"{length} bytes where the definition gives {total}")
-        sec, nsec = _stamp_paths(fielddefs)
-        cols = {p: _column(part, where[p]) for p in (sec, nsec)}
-        for paths in _wanted(msgtype).values():
-            for p in paths:
-                cols[p] = _column(part, where[p])
+        stamp = (_column(part, where[sec])[:, 0].astype(np.int64) * 1_000_000_000
+                 + _column(part, where[nsec])[:, 0].astype(np.int64))
+        fields = {name: _field(part, where, paths) for name, paths in _wanted(msgtype).items()}
         s_off, _, s_len = where["header.frame_id"]
-        ids = part[:, s_off:s_off + s_len]
-        if cdr and s_len:
-            ids = ids[:, :-1]  # CDR strings end in a NUL
-        if not (ids == ids[0]).all():
-            names = [bytes(u).decode("utf-8", "replace") for u in np.unique(ids, axis=0)]
-            frame = ", ".join(names)
-        else:
-            frame = bytes(ids[0]).decode("utf-8", "replace")
-        out.append((sel, cols, frame))
+        ids = part[:, s_off:s_off + s_len - (1 if cdr and s_len else 0)]  # CDR: a final NUL
+        uniq = [ids[0]] if (ids == ids[0]).all() else list(np.unique(ids, axis=0))
+        out.append((sel, stamp, fields, [bytes(u).decode("utf-8", "replace") for u in uniq]))
     return out
-
-
-def _fields_of(cols: dict[str, np.ndarray], msgtype: str, fielddefs: dict[str, Any],
-               ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    sec, nsec = _stamp_paths(fielddefs)
-    stamp = cols[sec][:, 0].astype(np.int64) * 1_000_000_000 + cols[nsec][:, 0].astype(np.int64)
-    fields = {name: np.hstack([cols[p] for p in paths]).astype(np.float64)
-              for name, paths in _wanted(msgtype).items()}
-    return stamp, fields
 
 
 def _decode_reference(raws: Iterable[tuple[int, bytes]], typestore: Any, msgtype: str,
@@ -376,11 +420,10 @@ def _decode_reference(raws: Iterable[tuple[int, bytes]], typestore: Any, msgtype
         frames.append(msg.header.frame_id)
         for name in fields:
             value = getattr(msg, name)
-            fields[name].append(np.asarray(value, np.float64).ravel() if name.endswith("ance")
+            fields[name].append([value[0]] if name.endswith("_covariance")
                                 else [value] if name == "temperature"
                                 else [value.x, value.y, value.z])
-    width = {name: len(_wanted(msgtype)[name]) if not name.endswith("ance") else 9
-             for name in fields}
+    width = {name: len(paths) for name, paths in _wanted(msgtype).items()}
     return _Decoded(np.asarray(stamps, np.int64), np.asarray(recv, np.int64),
                     {k: np.asarray(v, np.float64).reshape(-1, width[k])
                      for k, v in fields.items()},
@@ -401,9 +444,8 @@ def _decode(topic: _Topic, typestore: Any, cdr: bool, fast: bool) -> _Decoded:
         except _NotFixed:
             slow.extend(zip(recv.tolist(), map(bytes, rows)))
             continue
-        for sel, cols, frame in decoded:
-            stamp, fields = _fields_of(cols, topic.msgtype, fielddefs)
-            parts.append(_Decoded(stamp, recv[sel] if not sel.all() else recv, fields, [frame]))
+        for sel, stamp, fields, frames in decoded:
+            parts.append(_Decoded(stamp, recv if sel.all() else recv[sel], fields, frames))
     if slow:
         parts.append(_decode_reference(slow, typestore, topic.msgtype, cdr))
     if len(parts) == 1:
@@ -456,7 +498,7 @@ def _streams(topic: str, msgtype: str, d: _Decoded,
                          f"{len(values)} dropped ({fname})")
         if cov:
             # sensor_msgs/Imu: element 0 of a covariance at -1 means "this field is not given".
-            absent = d.fields[cov][order][:, 0] == -1.0
+            absent = d.fields[cov][order, 0] == -1.0
             if absent.any():
                 notes.append(f"{topic}: {plural(int(absent.sum()), 'message')} mark "
                              f"{fname} absent (covariance[0] = -1); dropped")
@@ -535,7 +577,7 @@ def _errors() -> tuple[type[BaseException], ...]:
 
     return (R1, R2, AnyReaderError, SerdeError, TypesysError, apsw.Error, _Corrupt,
             struct.error, EOFError, ValueError, KeyError, IndexError, UnicodeDecodeError,
-            AssertionError)
+            AssertionError, MemoryError)
 
 
 def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, key: str,
@@ -545,12 +587,17 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, ke
     accepts are read. ``fast=False`` decodes every message with rosbags' deserializer."""
     name = FORMAT_NAMES[key]
     broken = _errors()
-    digest = _hash_soon(path)
+    if key == "mcap" and path.is_file():
+        _check_mcap(path, source)
+    if key == "ros2" and path.is_file():
+        _check_sqlite(path, source)
     try:
         reader, storages = _open(path, key)
         reader.open()
     except broken as err:
-        raise ImucalError(f"cannot open the {name}: {_one_line(err)}", source=source) from None
+        raise ImucalError(f"cannot open the {name} (corrupt or truncated?): "
+                          f"{_one_line(err, path)}", source=source) from None
+    digest = _hash_soon(path)
     try:
         conns = list(reader.connections)
         sensors = [c for c in conns if c.msgtype in SENSORS]
@@ -569,7 +616,8 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, ke
         decoded = {t: _decode(topic, typestore, key != "ros1", fast)
                    for t, topic in topics.items() if topic.pieces or topic.loose}
     except broken as err:
-        raise ImucalError(f"cannot read the {name}: {_one_line(err)}", source=source) from None
+        raise ImucalError(f"cannot read the {name} (corrupt or truncated?): "
+                          f"{_one_line(err, path)}", source=source) from None
     finally:
         reader.close()
 
@@ -604,7 +652,49 @@ def _list_topics(conns: list[Any], most: int = 6) -> str:
     return ", ".join(pairs[:most]) + more
 
 
-def _one_line(err: BaseException) -> str:
-    text = " ".join(str(err).split()) or type(err).__name__
+def _one_line(err: BaseException, path: Path) -> str:
+    """rosbags' message on one line, without the file's path (the error names it already)
+    or the tuple rosbags wraps some messages in."""
+    if isinstance(err, MemoryError):
+        return "a record's length is larger than memory allows (a corrupt length field)"
+    args = err.args
+    while len(args) == 1 and isinstance(args[0], tuple):
+        args = args[0]
+    text = ": ".join(str(a) for a in args) if args else type(err).__name__
+    text = text.replace(f"{str(path)!r}", "").replace(str(path), "").replace("(('", "(")
+    text = " ".join(text.replace("('", "").replace("',)", "").split())
     return text if len(text) <= 200 else text[:197] + "..."
+
+
+def _check_sqlite(path: Path, source: str) -> None:
+    """A .db3 cut short can still open (SQLite reads what pages it finds): its header states
+    the database's size in pages, trusted when the header's two change counters agree."""
+    with path.open("rb") as fh:
+        head = fh.read(100)
+    if len(head) < 100 or path.with_name(path.name + "-wal").exists():
+        return  # too short for SQLite to open anyway; with a WAL the header may lag
+    page = int.from_bytes(head[16:18], "big")
+    page = 65536 if page == 1 else page
+    pages = int.from_bytes(head[28:32], "big")
+    size = path.stat().st_size
+    if head[24:28] == head[92:96] and pages and size < page * pages:
+        raise ImucalError(f"the ROS 2 bag is truncated: SQLite's header states {page * pages} "
+                          f"bytes, the file holds {size}", source=source)
+
+
+def _check_mcap(path: Path, source: str) -> None:
+    """What rosbags trusts before it reads: an MCAP file ends with the magic it starts with,
+    and its header record's length fits in the file (a random length makes rosbags try to
+    allocate it)."""
+    size = path.stat().st_size
+    with path.open("rb") as fh:
+        head = fh.read(17)
+        fh.seek(max(0, size - 8))
+        tail = fh.read(8)
+    if len(head) < 17 or tail != b"\x89MCAP0\r\n":
+        raise ImucalError("the MCAP file is truncated (it does not end with MCAP's closing "
+                          "magic bytes)", source=source)
+    if head[8] != 0x01 or int.from_bytes(head[9:17], "little") > size:
+        raise ImucalError("the MCAP file is corrupt: its first record is not a header of a "
+                          "length that fits in the file", source=source)
 
