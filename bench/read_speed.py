@@ -2,7 +2,7 @@
 reading the same samples from a ``.npy`` file in the same run, pinned to one core.
 
     .venv/bin/python bench/read_speed.py [--messages 500000] [--repeat 3] [--keep DIR]
-                                         [--formats ros2-db3,mcap]
+                                         [--formats ros2-db3,mcap] [--memory-mb 300]
 
 One function per format (``FORMATS``): it writes (or finds in ``--keep``) a log of ``n`` IMU
 samples with that format's own writer and returns the path; the bench then times
@@ -14,6 +14,11 @@ deserialising message by message (rosbags' own deserializer for ROS), timed on a
 
 To add a format (ULog, DataFlash): write ``def make_ulog(root, n) -> Path`` and add it to
 ``FORMATS``; everything else is shared.
+
+``--memory-mb M`` adds a second table: peak RSS of a fresh process reading a bag that holds a
+small IMU topic (30,000 messages, about 11 MB) beside an M-MB topic of other messages, against
+the same process that only imports the readers: what the reader keeps must follow the IMU
+topic, not the file.
 """
 
 from __future__ import annotations
@@ -44,11 +49,11 @@ def signals(n: int, seed: int = 7) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t_ns, acc, gyro
 
 
-def _ros2(root: Path, n: int, key: str) -> Path:
+def _ros(root: Path, n: int, key: str) -> Path:
     from bags import write_bag
 
-    bag = root / f"imu_{key}_{n}"
-    target = bag / f"{bag.name}.{'mcap' if key == 'mcap' else 'db3'}"
+    bag = root / (f"imu_{n}.bag" if key == "ros1" else f"imu_{key}_{n}")
+    target = bag if key == "ros1" else bag / f"{bag.name}.{'mcap' if key == 'mcap' else 'db3'}"
     if not target.exists():
         shutil.rmtree(bag, ignore_errors=True)
         t_ns, acc, gyro = signals(n)
@@ -56,19 +61,23 @@ def _ros2(root: Path, n: int, key: str) -> Path:
     return target
 
 
+def make_ros1(root: Path, n: int) -> Path:
+    return _ros(root, n, "ros1")
+
+
 def make_ros2_db3(root: Path, n: int) -> Path:
-    return _ros2(root, n, "ros2")
+    return _ros(root, n, "ros2")
 
 
 def make_mcap(root: Path, n: int) -> Path:
-    return _ros2(root, n, "mcap")
+    return _ros(root, n, "mcap")
 
 
 def ros_reference(path: Path, limit: int) -> float:
     """Messages per second through rosbags' AnyReader and per-message deserialize."""
     from rosbags.highlevel import AnyReader
 
-    with AnyReader([path.parent]) as reader:
+    with AnyReader([path if path.suffix == ".bag" else path.parent]) as reader:
         conns = [c for c in reader.connections if c.msgtype == "sensor_msgs/msg/Imu"]
         t0 = time.perf_counter()
         count = 0
@@ -85,7 +94,66 @@ def ros_reference(path: Path, limit: int) -> float:
 FORMATS: dict[str, tuple[Callable[[Path, int], Path], Callable[[Path, int], float] | None]] = {
     "ros2-db3": (make_ros2_db3, ros_reference),
     "mcap": (make_mcap, ros_reference),
+    "ros1": (make_ros1, ros_reference),
 }
+
+
+MEMORY_KEYS = {"ros1": "ros1", "ros2-db3": "ros2", "mcap": "mcap"}
+# Peak RSS as VmHWM: ru_maxrss of a child started by fork and exec keeps its parent's peak.
+_PEAK = """
+import sys
+from pathlib import Path
+from imucal.io.formats import read_streams, sniff
+import apsw, rosbags.rosbag1, rosbags.rosbag2, rosbags.typesys  # imported before the baseline
+
+def hwm():
+    with open("/proc/self/status") as fh:
+        return next(int(x.split()[1]) for x in fh if x.startswith("VmHWM:"))
+
+before = hwm()
+if sys.argv[1] != "-":
+    p = Path(sys.argv[1])
+    head = open(p, "rb").read(64) if p.is_file() else b""  # a ROS 2 bag may be a directory
+    ss = read_streams(p, sniff(head, p), p.name)
+    assert ss.streams[0].samples == 30000
+print(before, hwm())
+"""
+
+
+def memory(root: Path, name: str, mb: int) -> dict[str, float | str]:
+    """Peak RSS (MB) reading a bag of a small IMU topic beside an ``mb``-MB other topic."""
+    import subprocess
+
+    from bags import write_bag
+
+    key = MEMORY_KEYS[name]
+    n = 30_000
+    bag = root / (f"big_{mb}.bag" if key == "ros1" else f"big_{key}_{mb}")
+    t_ns, acc, gyro = signals(n)
+    if not bag.exists():
+        write_bag(bag, key, acc, gyro, t_ns, extra=["/camera/blob"], extra_bytes=1 << 20,
+                  extra_every=max(1, n // mb))
+    size = sum(f.stat().st_size for f in ([bag] if bag.is_file() else bag.iterdir()))
+
+    def peak(arg: str) -> tuple[float, float]:
+        out = subprocess.run([sys.executable, "-c", _PEAK, arg], capture_output=True,
+                             text=True, check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+        before, after = out.stdout.split()
+        return int(before) / 1024, int(after) / 1024
+
+    _, base = peak("-")
+    before, after = peak(str(bag))
+    return {"format": name, "file_MB": round(size / 1e6), "imu_MB": round(n * 360 / 1e6, 1),
+            "imports_peak_MB": round(base), "read_peak_MB": round(after),
+            "added_MB": round(after - before)}
+
+
+def table(rows: list[dict]) -> None:
+    cols = list(rows[0])
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    for r in rows:
+        print("| " + " | ".join(str(r[c]) for c in cols) + " |")
 
 
 def best(fn: Callable[[], object], repeat: int) -> tuple[float, float, object]:
@@ -119,7 +187,8 @@ def run(name: str, root: Path, n: int, repeat: int) -> dict[str, float | str | i
     ref = reference(path, min(n, 20_000)) if reference else float("nan")
     return {"format": name, "samples": n, "MB": round(path.stat().st_size / 1e6, 1),
             "wall_s": round(wall, 3), "cpu_s": round(cpu, 3),
-            "samples_per_s": round(n / wall), "npy_s": round(npy_wall, 4),
+            "samples_per_s": round(n / wall), "samples_per_cpu_s": round(n / cpu),
+            "npy_s": round(npy_wall, 4),
             "x_npy": round(wall / npy_wall, 1), "reference_per_s": round(ref),
             "x_reference": round((n / wall) / ref, 1)}
 
@@ -130,6 +199,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--keep", type=Path, help="write and reuse the logs here")
     ap.add_argument("--formats", default=",".join(FORMATS))
+    ap.add_argument("--memory-mb", type=int, default=0, help="also the memory table")
     ap.add_argument("--cpu", type=int, default=None, help="core to pin to (default: the first "
                     "allowed)")
     args = ap.parse_args()
@@ -137,16 +207,16 @@ def main() -> None:
     os.sched_setaffinity(0, {args.cpu if args.cpu is not None else allowed[0]})
     root = args.keep or Path(tempfile.mkdtemp(prefix="imucal-read-speed-"))
     root.mkdir(parents=True, exist_ok=True)
+    names = args.formats.split(",")
     try:
-        rows = [run(name, root, args.messages, args.repeat) for name in args.formats.split(",")]
+        table([run(name, root, args.messages, args.repeat) for name in names])
+        if args.memory_mb:
+            print()
+            table([memory(root, name, args.memory_mb)
+                   for name in names if name in MEMORY_KEYS])
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
-    cols = list(rows[0])
-    print("| " + " | ".join(cols) + " |")
-    print("|" + "---|" * len(cols))
-    for r in rows:
-        print("| " + " | ".join(str(r[c]) for c in cols) + " |")
 
 
 if __name__ == "__main__":

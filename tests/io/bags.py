@@ -30,7 +30,9 @@ def write_bag(path: Path, key: str, acc: np.ndarray, gyro: np.ndarray, t: np.nda
               temp: np.ndarray | None = None, temp_topic: str = "/imu/temperature",
               recv_delay_ns: int = 250_000, zero_stamps: bool = False,
               recv_ns: np.ndarray | None = None, big_endian: bool = False,
-              acc_cov0: np.ndarray | None = None, extra: Sequence[str] = ()) -> Path:
+              acc_cov0: np.ndarray | None = None, extra: Sequence[str] = (),
+              extra_bytes: int = 12, extra_every: int = 0, compression: str | None = None,
+              ) -> Path:
     """Write a bag of format ``key`` ("ros1", "ros2" for .db3, "mcap") at ``path``.
 
     ``acc``, ``gyro`` (and ``mag``) are (N, 3) in m/s^2, rad/s and tesla, ``temp`` (N,) in
@@ -40,7 +42,11 @@ def write_bag(path: Path, key: str, acc: np.ndarray, gyro: np.ndarray, t: np.nda
     writes zero header stamps, as some drivers do. ``frame_id`` may be one per message;
     ``big_endian`` writes ROS 2 messages in big-endian CDR (rare, but legal). ``acc_cov0``
     sets element 0 of each message's linear_acceleration_covariance (-1: "no acceleration").
-    ``extra`` names std_msgs/msg/String topics of one message each (a bag with other topics).
+    ``extra`` names std_msgs/msg/String topics (a bag with other topics): one message each
+    of ``extra_bytes`` characters, or one every ``extra_every`` IMU messages (a large other
+    topic beside a small IMU topic). ``compression`` (ROS 2: "file", "message", or "storage"
+    for MCAP's zstd chunks) compresses with zstd; a "file" or "message" bag is returned as its
+    directory, which is then the only way to read it.
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -86,10 +92,10 @@ def write_bag(path: Path, key: str, acc: np.ndarray, gyro: np.ndarray, t: np.nda
             msgs.append((temp_topic, "sensor_msgs/msg/Temperature", r,
                          T["sensor_msgs/msg/Temperature"](
                              header=header(i, n), temperature=float(temp[i]), variance=0.0)))
-    first = int(recv[0]) if len(recv) else 0
+    at = recv[::extra_every] if extra_every and len(recv) else recv[:1] if len(recv) else [0]
+    filler = T["std_msgs/msg/String"](data="x" * extra_bytes)
     for name in extra:
-        msgs.append((name, "std_msgs/msg/String", first,
-                     T["std_msgs/msg/String"](data="not a sensor")))
+        msgs.extend((name, "std_msgs/msg/String", int(r), filler) for r in at)
     # Recorded in receive order, as a recorder writes them (a stable sort: ties keep order).
     msgs.sort(key=lambda m: m[2])
     topics = dict.fromkeys((m[0], m[1]) for m in msgs)
@@ -107,8 +113,15 @@ def write_bag(path: Path, key: str, acc: np.ndarray, gyro: np.ndarray, t: np.nda
     from rosbags.rosbag2 import Writer as Writer2
 
     plugin = StoragePlugin.MCAP if key == "mcap" else StoragePlugin.SQLITE3
-    with Writer2(path, version=9, storage_plugin=plugin) as writer:
+    bag = Writer2(path, version=9, storage_plugin=plugin)
+    if compression:
+        from rosbags.rosbag2 import CompressionFormat, CompressionMode
+
+        bag.set_compression(CompressionMode[compression.upper()], CompressionFormat.ZSTD)
+    with bag as writer:
         conns = {(tp, mt): writer.add_connection(tp, mt, typestore=store) for tp, mt in topics}
         for tp, mt, n, msg in msgs:
             writer.write(conns[tp, mt], n, serialize(msg, mt))
+    if compression in ("file", "message"):
+        return path
     return path / f"{path.name}.{'mcap' if key == 'mcap' else 'db3'}"

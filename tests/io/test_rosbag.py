@@ -220,6 +220,16 @@ def test_zero_stamps_take_the_receive_time(tmp_path, key):
     assert any("every header.stamp is zero" in x for x in acc_s.notes)
 
 
+def test_simulated_clock_is_not_called_unix_time(tmp_path):
+    t = np.arange(10, dtype=np.int64) * 10_000_000 + 3 * NS + 7  # sim time: 3 s after start
+    acc = gyro = np.zeros((10, 3))
+    ss = read(write_bag(tmp_path / "b", "ros2", acc, gyro, t))
+    assert origin_ns(ss) == 3 * NS
+    assert np.array_equal(back_to_ns(ss, ss.streams[0].t), t)
+    assert ss.streams[0].time_source == "header.stamp, seconds after 3 s (not Unix time: " \
+        "simulated or since boot)"
+
+
 @pytest.mark.parametrize("key", ["ros1", "ros2", "mcap"])
 def test_unordered_and_repeated_stamps(tmp_path, key):
     t, acc, gyro, *_ = signals(40)
@@ -250,6 +260,41 @@ def test_big_endian_cdr_is_read_by_rosbags(tmp_path, key):
     ss = read(path)
     assert np.array_equal(ss.streams[0].values, acc)
     assert np.array_equal(back_to_ns(ss, ss.streams[1].t), t)
+
+
+@pytest.mark.parametrize("key,compression", [("ros2", "file"), ("ros2", "message"),
+                                             ("mcap", "message"), ("mcap", "storage")])
+def test_compressed_ros2_bags(tmp_path, key, compression):
+    t, acc, gyro, mag, _ = signals(200)
+    path = write_bag(tmp_path / "b", key, acc, gyro, t, mag=mag, compression=compression)
+    ss = read(path)
+    assert np.array_equal(ss.streams[0].values, acc)
+    assert np.array_equal(back_to_ns(ss, ss.streams[1].t), t)
+    assert ss.streams[2].samples == np.isfinite(mag).all(axis=1).sum()
+
+
+def test_mcap_whose_indexes_miss_messages_is_scanned(tmp_path):
+    """Where a chunk's message index lacks a channel the statistics count, the file is read
+    record by record (rosbags' scan) rather than losing those messages."""
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    t, acc, gyro, *_ = signals(300)
+    path = write_bag(tmp_path / "b", "mcap", acc, gyro, t)
+    storage = McapReader(path)
+    storage.open()
+    try:
+        conns = list(storage.connections)
+        assert storage.chunks and conns[0].msgcount == 300
+        storage.chunks[0].message_index_offsets.clear()
+        storage.chunks[0].channel_count.clear()
+        topic = rosbag._Topic("/imu/data_raw", IMU)
+        rosbag._mcap_messages(storage, conns, {"/imu/data_raw": topic})
+    finally:
+        storage.close()
+    store, _ = rosbag._typestore(conns, "mcap")
+    decoded = rosbag._decode(topic, store, cdr=True, fast=True)
+    assert np.array_equal(decoded.stamp, t) and np.array_equal(
+        decoded.fields["linear_acceleration"], acc)
 
 
 def test_keep_leaves_the_other_topics_unread(tmp_path):
@@ -350,3 +395,28 @@ def test_damage_inside_is_one_line(small_bags, tmp_path, key):
     path = tmp_path / f"hurt{small_bags[key].suffix}"
     path.write_bytes(bytes(data))
     one_line_error(path)
+
+
+@pytest.mark.parametrize("key", ["ros1", "ros2", "mcap"])
+def test_random_damage_is_refused_in_one_line_or_read(small_bags, tmp_path, key):
+    """Bytes overwritten, cut or flipped anywhere: the reader either reads the file (the
+    formats carry no checksum over message data) or refuses it with an ImucalError; nothing
+    else escapes."""
+    data = small_bags[key].read_bytes()
+    rng = np.random.default_rng(11)
+    path = tmp_path / f"fuzz{small_bags[key].suffix}"
+    refused = 0
+    for trial in range(24):
+        b = bytearray(data)
+        if trial % 2:
+            at = int(rng.integers(0, len(b)))
+            b[at:at + 32] = rng.bytes(len(b[at:at + 32]))
+        else:
+            b = b[:int(rng.integers(1, len(b)))]
+        path.write_bytes(bytes(b))
+        try:
+            read(path)
+        except ImucalError as err:
+            assert "\n" not in str(err)
+            refused += 1
+    assert refused >= 12  # every cut file is refused

@@ -22,8 +22,9 @@ from __future__ import annotations
 import hashlib
 import itertools
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -181,9 +182,10 @@ def _rosbags_messages(reader: Any, conns: list[Any], topics: dict[str, _Topic]) 
     unindexed MCAP): one Python step per message, the bytes kept as they come."""
     recv: dict[str, list[int]] = {}
     blobs: dict[str, list[bytes]] = {}
-    for conn, stamp, raw in reader.messages(connections=conns):
-        recv.setdefault(conn.topic, []).append(stamp)
-        blobs.setdefault(conn.topic, []).append(bytes(raw))
+    with _rosbags_internals():
+        for conn, stamp, raw in reader.messages(connections=conns):
+            recv.setdefault(conn.topic, []).append(stamp)
+            blobs.setdefault(conn.topic, []).append(bytes(raw))
     for name, b in blobs.items():
         topics[name].add_blobs(np.asarray(recv[name], np.int64), b)
 
@@ -226,11 +228,16 @@ def _sqlite_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) 
 
 def _mcap_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) -> None:
     """An indexed MCAP file chunk by chunk: each chunk's message index (log time and offset
-    of every message of a channel) says where the records are; numpy reads them."""
+    of every message of a channel) says where the records are; numpy reads them. Where the
+    indexes miss messages the file's statistics count, the file is scanned by rosbags."""
     from rosbags.rosbag2.storage_mcap import decompress  # validates size and CRC
 
     bio = storage.bio
     by_id = {c.id: c for c in conns}
+    indexed = {cid: sum(ch.channel_count.get(cid, 0) for ch in storage.chunks) for cid in by_id}
+    if any(c.msgcount and indexed[cid] != c.msgcount for cid, c in by_id.items()):
+        _rosbags_messages(_Scan(storage), conns, topics)
+        return
     for chunk in storage.chunks:
         wanted = [cid for cid in chunk.message_index_offsets if cid in by_id]
         if not wanted:
@@ -251,7 +258,7 @@ def _mcap_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) ->
             if not len(index):
                 continue
             off = index[:, 1]
-            if off.max() + 31 > len(buf):
+            if off.min() < 0 or off.max() + 31 > len(buf):
                 raise _Corrupt("an MCAP message index points past its chunk")
             # Message record: opcode 0x05, uint64 length, uint16 channel, uint32 sequence,
             # uint64 log time, uint64 publish time, then the message's bytes.
@@ -264,8 +271,29 @@ def _mcap_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) ->
             topics[by_id[cid].topic].add_slices(index[:, 0], buf, off + 31, rec_len - 22)
 
 
+@dataclass
+class _Scan:
+    """An MCAP storage read record by record by rosbags, ignoring its indexes."""
+
+    storage: Any
+
+    def messages(self, connections: list[Any]) -> Any:
+        return self.storage.messages_scan(connections)
+
+
 class _Corrupt(Exception):
     """The file's own structure is broken (turned into an ImucalError naming the file)."""
+
+
+@contextmanager
+def _rosbags_internals() -> Iterator[None]:
+    """Inside rosbags' readers, a corrupt ROS 1 bag surfaces as the lookup or assertion
+    that failed on it (a KeyError on a connection id read from garbage): those become
+    :class:`_Corrupt` here, where only rosbags runs, and stay bugs anywhere else."""
+    try:
+        yield
+    except (KeyError, AssertionError, IndexError, ValueError) as err:
+        raise _Corrupt(f"{type(err).__name__} in rosbags: {err}") from err
 
 
 def _open(path: Path, key: str) -> tuple[Any, list[Any]]:
@@ -510,11 +538,18 @@ def _streams(topic: str, msgtype: str, d: _Decoded,
             values=np.ascontiguousarray(values[good] if not good.all() else values),
             unit=unit, origin=f"topic {topic} ({msgtype}), field {fname}",
             frame=FRAME if kind != "temp" else None,
-            time_source=f"{time_source}, seconds after {origin_ns // 1_000_000_000} s "
-                        "(Unix time)",
+            time_source=f"{time_source}, seconds after {_clock_name(origin_ns)}",
             device=device, imu=topic if msgtype == IMU else imu,
             notes=tuple(notes)))
     return out
+
+
+def _clock_name(origin_ns: int) -> str:
+    """The origin of ``t``: a whole second of Unix time for a live recording; a simulation's
+    clock (ROS sim time starts near zero) is named as what it is."""
+    sec = origin_ns // 1_000_000_000
+    return f"{sec} s (Unix time)" if sec >= 946_684_800 else f"{sec} s (not Unix time: " \
+        "simulated or since boot)"
 
 
 def _typestore(conns: list[Any], key: str) -> tuple[Any, list[str]]:
@@ -567,8 +602,16 @@ def _hash_soon(path: Path) -> Callable[[], str]:
 
 
 def _errors() -> tuple[type[BaseException], ...]:
-    """What rosbags and the storage libraries raise on a broken file."""
+    """What rosbags and the libraries under it raise on a broken file: their own errors,
+    SQLite's, a short read (struct, EOF), a bad decompression (bz2: OSError, lz4:
+    RuntimeError, zstd: ZstdError), and a corrupt length that asks for more memory than
+    there is."""
     import apsw
+
+    try:
+        from backports.zstd import ZstdError
+    except ImportError:  # Python 3.14: rosbags uses the standard library's
+        from compression.zstd import ZstdError  # type: ignore[import-not-found,no-redef]
     from rosbags.highlevel import AnyReaderError
     from rosbags.rosbag1 import ReaderError as R1
     from rosbags.rosbag2 import ReaderError as R2
@@ -576,8 +619,8 @@ def _errors() -> tuple[type[BaseException], ...]:
     from rosbags.typesys import TypesysError
 
     return (R1, R2, AnyReaderError, SerdeError, TypesysError, apsw.Error, _Corrupt,
-            struct.error, EOFError, ValueError, KeyError, IndexError, UnicodeDecodeError,
-            AssertionError, MemoryError)
+            struct.error, EOFError, UnicodeDecodeError, OSError, RuntimeError, ZstdError,
+            MemoryError)
 
 
 def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, key: str,
@@ -593,7 +636,8 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, ke
         _check_sqlite(path, source)
     try:
         reader, storages = _open(path, key)
-        reader.open()
+        with _rosbags_internals():
+            reader.open()
     except broken as err:
         raise ImucalError(f"cannot open the {name} (corrupt or truncated?): "
                           f"{_one_line(err, path)}", source=source) from None
@@ -638,8 +682,12 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, ke
     empty = [t for t in topics if t not in decoded]
     if empty:
         notes.append(f"{plural(len(empty), 'topic')} without messages: {', '.join(empty)}")
-    notes.append(f"times are seconds after {origin // 1_000_000_000} s (Unix time), the whole "
-                 "second before the first sample")
+    if streams:
+        notes.append(f"times are seconds after {_clock_name(origin)}, the whole second before "
+                     "the first sample (float64 seconds since 1970 would lose the stamps' "
+                     "nanoseconds)")
+        notes.append("axes: FLU (x forward, y left, z up) is what ROS REP 103 states for a body "
+                     "frame; a bag does not show that its driver follows it")
     return StreamSet(source=source, format=name, streams=tuple(streams), sha256=digest(),
                      notes=tuple(notes))
 
