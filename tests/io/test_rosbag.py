@@ -220,6 +220,18 @@ def test_zero_stamps_take_the_receive_time(tmp_path, key):
     assert any("every header.stamp is zero" in x for x in acc_s.notes)
 
 
+def test_messages_before_the_clock_is_set_are_dropped(tmp_path):
+    t, acc, gyro, *_ = signals(30)
+    stamps = t.copy()
+    stamps[:3] = 0  # a driver publishing before its clock is synchronised
+    ss = read(write_bag(tmp_path / "b", "mcap", acc, gyro, stamps, recv_ns=t + 50))
+    acc_s = ss.streams[0]
+    assert np.array_equal(back_to_ns(ss, acc_s.t), t[3:])
+    assert np.array_equal(acc_s.values, acc[3:])
+    assert "3 messages with a zero header.stamp dropped" in " ".join(acc_s.notes)
+    assert acc_s.time_source.startswith("header.stamp")
+
+
 def test_simulated_clock_is_not_called_unix_time(tmp_path):
     t = np.arange(10, dtype=np.int64) * 10_000_000 + 3 * NS + 7  # sim time: 3 s after start
     acc = gyro = np.zeros((10, 3))

@@ -491,15 +491,21 @@ def _clock(topic: str, d: _Decoded) -> tuple[np.ndarray, str, list[str], np.ndar
     """Header stamps, or the receive time where every stamp of the topic is zero; sorted,
     exact repeats dropped. Returns (ns, time source, notes, the order to take samples in)."""
     notes: list[str] = []
+    rows = np.arange(len(d.stamp))
     if len(d.stamp) and not d.stamp.any():
         ns, source = d.recv, "receive time (the bag's record time; every header stamp is zero)"
         notes.append(f"{topic}: every header.stamp is zero; the bag's receive time is used")
     else:
         ns, source = d.stamp, "header.stamp"
+        unset = ns == 0
+        if unset.any():  # a driver not yet synchronised: a zero stamp is "not set", not 1970
+            notes.append(f"{topic}: {plural(int(unset.sum()), 'message')} with a zero "
+                         "header.stamp dropped")
+            rows, ns = rows[~unset], ns[~unset]
     order = np.argsort(ns, kind="stable")
-    if (np.diff(order) != 1).any():
+    if (np.diff(order) < 0).any():
         notes.append(f"{topic}: messages were not in time order; sorted")
-        ns = ns[order]
+    ns, order = ns[order], rows[order]
     keep = np.ones(len(ns), bool)
     keep[1:] = ns[1:] != ns[:-1]
     if not keep.all():
