@@ -309,6 +309,24 @@ def test_mcap_whose_indexes_miss_messages_is_scanned(tmp_path):
         decoded.fields["linear_acceleration"], acc)
 
 
+def test_ros1_records_out_of_layout_go_to_rosbags(tmp_path, monkeypatch):
+    """Where a record is not laid out as expected, the whole bag is read by rosbags'
+    messages() instead, with the same result."""
+    t, acc, gyro, mag, _ = signals(500)
+    path = write_bag(tmp_path / "b.bag", "ros1", acc, gyro, t, mag=mag)
+    fast = read(path)
+    calls = []
+
+    def refuse(*args):
+        calls.append(1)
+        raise rosbag._NotFixed("as if a header differed")
+
+    monkeypatch.setattr(rosbag, "_ros1_records", refuse)
+    slow = read(path)
+    assert calls and [s.samples for s in slow.streams] == [500, 500, 428]
+    assert_same_streams(fast, slow)
+
+
 def test_keep_leaves_the_other_topics_unread(tmp_path):
     t, acc, gyro, mag, _ = signals(60)
     path = write_bag(tmp_path / "b", "ros2", acc, gyro, t, mag=mag)

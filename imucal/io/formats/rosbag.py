@@ -11,10 +11,11 @@ definition: CDR alignment for ROS 2, packed little-endian for ROS 1). rosbags' d
 stays the reference (tests compare the two) and the fallback for whatever the fast path does
 not cover (a big-endian CDR message, an unexpected length, a message type with a sequence).
 
-Storage is read the same way rosbags reads it, with less per-message Python: a ``.db3`` topic
-by one SQL query, an indexed MCAP file chunk by chunk through its message indexes (numpy
-gathers the message records), a ROS 1 bag and anything else through rosbags' ``messages()``.
-Only the topics ``keep`` accepts are read at all.
+Storage is opened by rosbags and read the way rosbags reads it, with less per-message
+Python: a ``.db3`` by windows of SQL aggregates over the selected topics, an indexed MCAP file
+and a ROS 1 bag chunk by chunk through their indexes (numpy gathers the message records), a
+bag of zstd-compressed messages or an unindexed MCAP through rosbags' ``messages()``. Only the
+topics ``keep`` accepts are read at all; memory follows them, not the file.
 """
 
 from __future__ import annotations
@@ -190,6 +191,100 @@ def _rosbags_messages(reader: Any, conns: list[Any], topics: dict[str, _Topic]) 
         topics[name].add_blobs(np.asarray(recv[name], np.int64), b)
 
 
+def _ros1_messages(reader: Any, conns: list[Any], topics: dict[str, _Topic]) -> None:
+    """A ROS 1 bag chunk by chunk through the index rosbags read at open (time, chunk and
+    offset of every message of a connection): numpy reads the message data records of a
+    chunk; rosbags reads the bag where a record is not laid out as the first one of its
+    header length (then nothing here is trusted)."""
+    wanted = {c.id: c.topic for c in conns}
+    parts = [np.fromiter(itertools.chain.from_iterable(reader.indexes[cid]), np.int64,
+                         3 * len(reader.indexes[cid])).reshape(-1, 3)
+             for cid in wanted]
+    cids = np.concatenate([np.full(len(p), cid) for p, cid in zip(parts, wanted)])
+    index = np.concatenate(parts) if parts else np.zeros((0, 3), np.int64)
+    # Held until every chunk is read: one record out of layout sends the whole bag to
+    # rosbags. The pieces hold only the selected messages' bytes (add_slices copies them out
+    # of a chunk that is mostly other topics).
+    found = _Topic("", "")
+    owner: list[int] = []
+    # Grouped by chunk, then connection, in offset order: one pass, one decompression each.
+    order = np.lexsort((index[:, 2], cids, index[:, 1]))
+    index, cids = index[order], cids[order]
+    cut = np.flatnonzero((np.diff(index[:, 1]) != 0) | (np.diff(cids) != 0)) + 1
+    bounds = zip(np.r_[0, cut].tolist(), np.r_[cut, len(index)].tolist())
+    buf, loaded = np.zeros(0, np.uint8), -1
+    try:
+        for lo, hi in bounds if len(index) else ():
+            pos, cid = int(index[lo, 1]), int(cids[lo])
+            if pos != loaded:
+                chunk = reader.chunks[pos]
+                reader.bio.seek(chunk.datapos)
+                buf = np.frombuffer(chunk.decompressor(reader.bio.read(chunk.datasize)),
+                                    np.uint8)
+                loaded = pos
+            part = index[lo:hi]
+            starts, lengths = _ros1_records(buf, part[:, 2], part[:, 0], cid)
+            before = len(found.pieces)
+            found.add_slices(part[:, 0], buf, starts, lengths)
+            owner.extend([cid] * (len(found.pieces) - before))
+    except _NotFixed:
+        _rosbags_messages(reader, conns, topics)
+        return
+    for cid, piece in zip(owner, found.pieces):
+        topics[wanted[cid]].pieces.append(piece)
+
+
+def _ros1_records(buf: np.ndarray, off: np.ndarray, time: np.ndarray, cid: int,
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Where the data of each message data record at ``off`` starts, and its length. A record
+    is a uint32 header length, the header (fields ``len name=value``: op, conn, time in any
+    order), a uint32 data length and the data; each header must match the first one's bytes
+    except its time, hold op 0x02, this connection and the index's time."""
+    if not len(off):
+        return off, off
+    if off.min() < 0 or off.max() + 4 > len(buf):
+        raise _NotFixed("an index offset is outside its chunk")
+    hl = _u32(buf, off)
+    if (hl != hl[0]).any() or off.max() + 8 + int(hl[0]) > len(buf):
+        raise _NotFixed("message headers of several lengths")
+    n = int(hl[0])
+    head = buf[off[:, None] + 4 + np.arange(n)]
+    fields: dict[bytes, int] = {}
+    first, at = bytes(head[0]), 0
+    while at + 4 <= n:
+        size = int.from_bytes(first[at:at + 4], "little")
+        name, sep, _ = first[at + 4:at + 4 + size].partition(b"=")
+        if not sep or at + 4 + size > n:
+            raise _NotFixed("a header field does not parse")
+        fields[name] = at + 4 + len(name) + 1
+        at += 4 + size
+    if at != n or not {b"op", b"conn", b"time"} <= set(fields):
+        raise _NotFixed("not a message data header")
+    varying = np.zeros(n, bool)
+    varying[fields[b"time"]:fields[b"time"] + 8] = True
+    if not (head[:, ~varying] == head[0, ~varying]).all() or head[0, fields[b"op"]] != 0x02 \
+            or _u32(head[0], np.array([fields[b"conn"]]))[0] != cid:
+        raise _NotFixed("a header differs from the first")
+    t = fields[b"time"]
+    stamp = (_u32(head, None, t).astype(np.int64) * 1_000_000_000
+             + _u32(head, None, t + 4).astype(np.int64))
+    if (stamp != time).any():
+        raise _NotFixed("a record's time differs from its index entry")
+    dl = _u32(buf, off + 4 + n)
+    starts = off + 8 + n
+    if (starts + dl > len(buf)).any():
+        raise _NotFixed("a message runs past its chunk")
+    return starts, dl.astype(np.int64)
+
+
+def _u32(buf: np.ndarray, at: np.ndarray | None, col: int = 0) -> np.ndarray:
+    """Little-endian uint32 at byte offsets ``at`` of a 1-D buffer, or at column ``col`` of
+    every row of a 2-D one."""
+    if at is None:
+        return buf[:, col:col + 4].copy().view("<u4")[:, 0]
+    return buf[at[:, None] + np.arange(4)].copy().view("<u4")[:, 0]
+
+
 _SQL_WINDOW = 1 << 17  # message rows (of every topic) per query: bounds what one query holds
 
 
@@ -334,7 +429,10 @@ def _gather(reader: Any, storages: list[Any], selected: list[Any], topics: dict[
 
     storages = _files(storages)
     if not storages:
-        _rosbags_messages(reader, selected, topics)
+        if hasattr(reader, "indexes") and hasattr(reader, "chunks"):  # a ROS 1 bag
+            _ros1_messages(reader, selected, topics)
+        else:
+            _rosbags_messages(reader, selected, topics)
         return
     wanted = {(c.topic, c.msgtype) for c in selected}
     for storage in storages:
