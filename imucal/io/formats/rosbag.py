@@ -617,7 +617,7 @@ def _streams(topic: str, msgtype: str, d: _Decoded,
              imu: str | None) -> list[Stream]:
     ns, time_source, clock_notes, order = clock
     t = (ns - origin_ns) / 1e9
-    device = d.frame_ids[0] if len(d.frame_ids) == 1 else None
+    device = (d.frame_ids[0] or None) if len(d.frame_ids) == 1 else None  # "" names nothing
     out = []
     for kind, fname, cov, unit in SENSORS[msgtype]:
         values = d.fields[fname][order]
