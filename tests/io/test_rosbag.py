@@ -327,6 +327,19 @@ def test_ros1_records_out_of_layout_go_to_rosbags(tmp_path, monkeypatch):
     assert_same_streams(fast, slow)
 
 
+def test_db3_with_far_apart_row_ids(tmp_path, monkeypatch):
+    """Row ids with gaps (rows deleted, ids given by another writer): every row is read, and
+    the windows jump the gaps instead of stepping through them."""
+    t, acc, gyro, *_ = signals(300)
+    path = write_bag(tmp_path / "b", "ros2", acc, gyro, t)
+    with sqlite3.connect(path) as db:
+        db.execute("UPDATE messages SET id = id + 1000000000000 WHERE id > 100")
+    monkeypatch.setattr(rosbag, "_SQL_WINDOW", 64)
+    ss = read(path)
+    assert np.array_equal(ss.streams[0].values, acc)
+    assert np.array_equal(back_to_ns(ss, ss.streams[0].t), t)
+
+
 def test_keep_leaves_the_other_topics_unread(tmp_path):
     t, acc, gyro, mag, _ = signals(60)
     path = write_bag(tmp_path / "b", "ros2", acc, gyro, t, mag=mag)

@@ -297,10 +297,14 @@ def _sqlite_messages(storage: Any, conns: list[Any], topics: dict[str, _Topic]) 
     db = storage.dbconn
     ids = {c.id: c.topic for c in conns}
     marks = ",".join("?" * len(ids))
-    ((last,),) = db.execute("SELECT coalesce(max(id), 0) FROM messages").fetchall()
     ((encoding,),) = db.execute("PRAGMA encoding").fetchall()
-    for lo in range(0, last + 1, _SQL_WINDOW):
+    ((lo,),) = db.execute("SELECT min(id) FROM messages").fetchall()
+    while lo is not None:
         window = (lo, lo + _SQL_WINDOW, *ids)
+        # The next window starts at the next row that exists (ids may have gaps): a lookup
+        # in the rowid tree, not a scan.
+        ((lo,),) = db.execute("SELECT min(id) FROM messages WHERE id >= ?",
+                              (lo + _SQL_WINDOW,)).fetchall()
         if encoding == "UTF-8":
             rows = db.execute(
                 "SELECT topic_id, CAST(group_concat(data, x'') AS BLOB), "
