@@ -127,8 +127,9 @@ def _layout(fielddefs: dict[str, Any], msgtype: str, strlen: int | None, cdr: bo
 
 @dataclass
 class _Topic:
-    """A selected topic: its connections' ids per storage, and the messages gathered so far,
-    as (receive times, rows) pieces where rows is a (messages, bytes) uint8 matrix."""
+    """A selected topic and its messages gathered so far: (receive times, rows) pieces where
+    rows is a (messages, bytes) uint8 matrix of messages of one length, and messages read
+    one by one (``loose``) where a storage gave them so."""
 
     name: str
     msgtype: str
