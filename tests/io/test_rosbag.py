@@ -340,6 +340,28 @@ def test_db3_with_far_apart_row_ids(tmp_path, monkeypatch):
     assert np.array_equal(back_to_ns(ss, ss.streams[0].t), t)
 
 
+def test_utf16_db3_rows_are_fetched_one_by_one(tmp_path):
+    """In a UTF-16 database SQLite would convert the concatenated bytes as text: the rows are
+    fetched one by one instead, with the same values."""
+    t, acc, gyro, *_ = signals(120)
+    src = write_bag(tmp_path / "b", "ros2", acc, gyro, t)
+    dst = tmp_path / "utf16.db3"
+    with sqlite3.connect(src) as old, sqlite3.connect(dst) as new:
+        new.execute("PRAGMA encoding = 'UTF-16le'")
+        tables = old.execute("SELECT name, sql FROM sqlite_master WHERE type = 'table'")
+        for name, sql in tables.fetchall():
+            new.execute(sql)
+            rows = old.execute(f"SELECT * FROM {name}").fetchall()
+            if rows:
+                new.executemany(f"INSERT INTO {name} VALUES ({','.join('?' * len(rows[0]))})",
+                                rows)
+    with sqlite3.connect(dst) as db:
+        assert db.execute("PRAGMA encoding").fetchone()[0] == "UTF-16le"
+    ss = read(dst)
+    assert np.array_equal(ss.streams[0].values, acc)
+    assert np.array_equal(back_to_ns(ss, ss.streams[1].t), t)
+
+
 def test_keep_leaves_the_other_topics_unread(tmp_path):
     t, acc, gyro, mag, _ = signals(60)
     path = write_bag(tmp_path / "b", "ros2", acc, gyro, t, mag=mag)
