@@ -43,8 +43,17 @@ def read_log(path: Path, key: str, source: str, keep=None) -> StreamSet:
 
 def choose_streams(path: Path, key: str, source: str, select: dict[str, str | None],
                     acc_only: bool, opts: LoadOptions) -> Choice:
-    streams = read_log(path, key, source, keep_for(select))
-    chosen = choose(streams, select, acc_only)
+    keep = keep_for(select)
+    streams = read_log(path, key, source, keep)
+    try:
+        chosen = choose(streams, select, acc_only)
+    except ImucalError:
+        if keep is None:
+            raise
+        # A selector that matched nothing read nothing: read the file's every stream, so that
+        # the refusal lists what it does hold.
+        streams = read_log(path, key, source)
+        chosen = choose(streams, select, acc_only)
     opts.notes.extend(streams.notes)
     opts.notes.extend(chosen.said)
     for s in (chosen.acc, chosen.gyro):

@@ -765,7 +765,8 @@ def read_streams(path: Path, source: str, keep: Callable[[str], bool] | None, ke
             raise ImucalError(f"topic {sorted(mixed)[0]} carries two message types; expected "
                               "one", source=source)
         typestore, notes = _typestore(selected, key)
-        _gather(reader, storages, selected, topics)
+        if selected:  # keep may accept none of them: nothing to read
+            _gather(reader, storages, selected, topics)
         decoded = {t: _decode(topic, typestore, key != "ros1", fast)
                    for t, topic in topics.items() if topic.pieces or topic.loose}
     except broken as err:
