@@ -111,7 +111,7 @@ CLI = ("import sys; from imucal.cli import main; sys.argv[0] = 'imucal'; "
        "sys.exit(main())")
 
 
-def env(pycache: str | None, tree: bool = True) -> dict[str, str]:
+def env(pycache: str | None, tree: Path | None = ROOT) -> dict[str, str]:
     """The children's environment: this tree first on the path; with ``--pycache DIR``
     bytecode cached under DIR (as an installed package has it) even where the environment
     says not to write it."""
@@ -119,9 +119,9 @@ def env(pycache: str | None, tree: bool = True) -> dict[str, str]:
     if pycache:
         e.pop("PYTHONDONTWRITEBYTECODE", None)
         e["PYTHONPYCACHEPREFIX"] = pycache
-    if not tree:
+    if tree is None:
         return e
-    e["PYTHONPATH"] = os.pathsep.join([str(ROOT), e.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    e["PYTHONPATH"] = os.pathsep.join([str(tree), e.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     return e
 
 
@@ -129,6 +129,7 @@ def child_cpu(cmd: list[str], **kw) -> tuple[float, float, str, str]:
     """(cpu, wall, stdout, stderr) of one process, CPU from its own rusage (os.wait4)."""
     import time
 
+    kw.setdefault("cwd", tempfile.gettempdir())  # not a checkout: `-c` puts the cwd on the path
     with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=fo, stderr=fe, text=True, **kw)
@@ -201,16 +202,18 @@ def main() -> None:
     ap.add_argument("--rate", type=float)
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--baseline", help="another imucal entry point, e.g. main's, timed in turn")
+    ap.add_argument("--tree", type=Path, default=ROOT,
+                    help="the checkout whose imucal is measured (default: this one)")
     ap.add_argument("--pycache", metavar="DIR",
                     help="cache bytecode under DIR (PYTHONPYCACHEPREFIX) for every child, as an "
                          "installed package has it; the default is the environment as it is")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="imucal-startup-"))
-    e = env(a.pycache)
+    e = env(a.pycache, a.tree)
     if a.pycache:  # fill the bytecode cache: the figures are those of later runs
         child_cpu([PY, "-c", CLI, *command_args(a, str(tmp / "w.json"))], env=e)
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} "
-          f"cores; python {sys.version.split()[0]}; runs {a.runs}; bytecode: "
+          f"cores; python {sys.version.split()[0]}; runs {a.runs}; tree {a.tree}; bytecode: "
           f"{a.pycache or ('not written' if 'PYTHONDONTWRITEBYTECODE' in e else 'as usual')}")
 
     # 1. the interpreter
@@ -273,7 +276,7 @@ def main() -> None:
         row = [c, w]
         if base:
             c, w, _, _ = child_cpu([*base, *command_args(a, str(tmp / "b.json"))],
-                                   env=env(a.pycache, tree=False))
+                                   env=env(a.pycache, tree=None))
             row += [c, w]
         if i:
             pairs.append(row)
