@@ -34,6 +34,12 @@ KERNEL = textwrap.dedent('''
         for v in x:
             s = s * 0.5 + v
         return s
+
+    @jit("float64(float64)")
+    def checked(x):
+        if x < 0.0:
+            raise ValueError("negative")
+        return 1.0 / x
 ''')
 
 RUN = textwrap.dedent('''
@@ -48,6 +54,13 @@ RUN = textwrap.dedent('''
         out["other_type"] = "compiled"
     except TypeError:
         out["other_type"] = "refused"
+    raised = []
+    for v in (-1.0, 0.0):
+        try:
+            kern.checked(v)
+        except (ValueError, ZeroDivisionError) as e:
+            raised.append(f"{type(e).__name__}: {e}")
+    out["raised"] = raised
     print(json.dumps(out))
 ''')
 
@@ -72,3 +85,6 @@ def test_compiled_then_loaded_lean_gives_the_same_numbers(tmp_path: Path) -> Non
     expected = float(np.dot(x, np.cos(x)) / np.sum(np.sqrt(np.abs(x))))
     assert float.fromhex(warm["fixed"]) == pytest.approx(expected, rel=1e-12)
     assert cold["other_type"] == warm["other_type"] == "refused"
+    # a kernel's exceptions reach Python from the cached code as from the compiled
+    assert warm["raised"] == cold["raised"] == ["ValueError: negative",
+                                                "ZeroDivisionError: division by zero"]
