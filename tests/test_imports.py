@@ -1,6 +1,7 @@
 """What a command imports is what it uses (issue 22): scipy.optimize (~0.2 s CPU), numba (~0.15 s
 with its kernels' load) and rerun are imported by the steps that need them, not by ``--help``,
-loading a session, or loading and applying a calibration. Each case runs in a fresh process."""
+opening a saved recording, loading a session, or loading and applying a calibration. Each case
+runs in a fresh process."""
 
 import json
 import subprocess
@@ -32,6 +33,17 @@ def test_help_imports_none_of_the_heavy_modules(tmp_path: Path) -> None:
                      "try:\n    main(['calibrate', '--help'])\nexcept SystemExit:\n    pass\n"
                      "mark('calibrate --help')\n", tmp_path)
     assert seen == {"help": [], "calibrate --help": []}
+
+
+def test_a_saved_recording_is_opened_without_numpy_or_rerun(tmp_path: Path) -> None:
+    """`imucal view RUN.rrd` hands the file to the viewer program: nothing to compute. Its
+    ``--save`` copy (the same path up to the launch) checks the RRF header and copies."""
+    (tmp_path / "run.rrd").write_bytes(b"RRF2" + bytes(60))
+    seen = _imported("from imucal.cli import main\n"
+                     "assert main(['view', 'run.rrd', '--save', 'copy.rrd']) == 0\n"
+                     "mark('view --save')\n", tmp_path)
+    assert seen == {"view --save": []}
+    assert (tmp_path / "copy.rrd").read_bytes() == (tmp_path / "run.rrd").read_bytes()
 
 
 def test_loading_and_applying_import_no_fit_no_kernel_no_viewer(tmp_path: Path) -> None:

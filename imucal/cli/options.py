@@ -376,11 +376,14 @@ def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
 
 def load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit, acc_only=False,
                 spill_dir=None) -> dict[str, Any]:
-    from imucal.io.spill import SpillPolicy  # numpy: not for --help
+    spill = None
+    if spill_dir is not None:  # imported only then: it imports numpy (not for --help, nor
+        from imucal.io.spill import SpillPolicy  # for opening a saved .rrd)
 
+        spill = SpillPolicy(directory=spill_dir)
     return {"gyro_path": gyro, "rate": rate, "acc_unit": acc_unit, "gyro_unit": gyro_unit,
             "columns": parse_columns(columns), "time_unit": time_unit, "acc_only": acc_only,
-            "spill": None if spill_dir is None else SpillPolicy(directory=spill_dir)}
+            "spill": spill}
 
 
 def usage_error(message: str, hint: str) -> typer.BadParameter:
