@@ -25,7 +25,7 @@ from numba import njit
 
 def _lean_cache_load(dispatcher) -> None:
     """Make ``dispatcher`` load cached code after initialising numba's runtime alone (see the
-    module's note). Relies on numba's ``Cache`` internals (numba 0.57-0.68); when they are not
+    module's note). Relies on numba's ``Cache`` internals (as in numba 0.68); when they are not
     there, numba's own load is left in place (slower, the same code)."""
     cache = getattr(dispatcher, "_cache", None)
     load = getattr(cache, "_load_overload", None)
