@@ -409,8 +409,11 @@ def build_settings(*, window, min_len, k, init, init_start, init_end, statistic,
 
 def load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit, acc_only=False,
                 spill_dir=None, acc=None, mag=None, temp=None) -> dict[str, Any]:
-    from imucal.io.spill import SpillPolicy  # numpy: not for --help
+    spill = None
+    if spill_dir is not None:  # imported only then: it imports numpy (not for --help, nor
+        from imucal.io.spill import SpillPolicy  # for opening a saved .rrd)
 
+        spill = SpillPolicy(directory=spill_dir)
     # --gyro names a file where one is there, else a log's stream (a table's missing gyroscope
     # file is then said by the loader).
     gyro_file = gyro if gyro is not None and Path(gyro).exists() else None
@@ -420,7 +423,7 @@ def load_kwargs(*, gyro, rate, acc_unit, gyro_unit, columns, time_unit, acc_only
             "select": {k: v for k, v in select.items() if v is not None} or None,
             "acc_unit": acc_unit, "gyro_unit": gyro_unit,
             "columns": parse_columns(columns), "time_unit": time_unit, "acc_only": acc_only,
-            "spill": None if spill_dir is None else SpillPolicy(directory=spill_dir)}
+            "spill": spill}
 
 
 def usage_error(message: str, hint: str) -> typer.BadParameter:

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.optimize import OptimizeResult, least_squares
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 # scipy's forward-difference step, sqrt(machine epsilon) relative (its "2-point" rule)
 _FD_STEP = float(np.sqrt(np.finfo(float).eps))
@@ -74,6 +77,10 @@ def fit_tikhonov(
     ``s^2 = |r|^2 / (n - p)``: with ``lam = 0`` it is the usual ``s^2 (J'J)^-1``.
     Raises ``FloatingPointError`` when the residuals at ``start`` are not finite.
     """
+    # imported here, where a fit runs: scipy.optimize costs ~0.2 s CPU to import (it pulls in
+    # scipy.linalg, scipy.fft, scipy.special), not paid by loading a session or a calibration
+    from scipy.optimize import least_squares
+
     start = np.array(start, dtype=float)
     problem = _StackedProblem(residuals, jacobian, theta0, lam)
     res = least_squares(problem.fun, start, jac=problem.jac, method="lm", x_scale="jac",

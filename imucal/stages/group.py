@@ -41,7 +41,6 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import fdtrc, fdtri
 
 from imucal.errors import ImucalError
 from imucal.models import ACC_THETA0, acc_T
@@ -215,6 +214,9 @@ def _decide(d: _Data, i0: int, i1: int, j: int, thetas: tuple[np.ndarray, ...], 
         return _untested(i0, i1, f"kept: {n} blocks leave no degree of freedom for the test "
                          f"of 2 x {N_PARAMS} parameters", block=i0 + j, boundaries=n_js,
                          change=change)
+    # imported here, where a boundary is tested: scipy.special costs ~0.1 s CPU to import
+    from scipy.special import fdtrc, fdtri
+
     gain = max(one - two, 0.0)
     f = (gain / dof[0]) / (two / dof[1]) if two > 0 else float("inf")
     p = float(fdtrc(*dof, f))  # P(F > f), the F distribution's tail

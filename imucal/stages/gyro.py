@@ -6,7 +6,6 @@ import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from imucal.errors import ImucalError
 from imucal.models import GYRO_PARAM_NAMES, SensorModel, gyro_theta
@@ -185,6 +184,8 @@ def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: n
         grid = np.linspace(np.log(1e-7), np.log(10.0), 160)
     i = int(np.argmin(costs(grid)))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    from scipy.optimize import minimize_scalar  # here, where it runs (see fit_tikhonov)
+
     best = minimize_scalar(lambda g: float(costs(np.array([g]))[0]), bounds=(lo, hi),
                            method="bounded", options={"xatol": 1e-6})
     return float(np.exp(best.x))
