@@ -253,8 +253,6 @@ def test_batch_without_dask_says_how_to_install_it(tmp_path, capsys, monkeypatch
 
 # Imported by name where the distribution's name differs.
 MODULE = {"rerun-sdk": "rerun", "dask": "distributed"}
-# The log readers (imucal/io/formats) land with their own branches: imported there.
-READERS = {"rosbags", "pyulog", "pymavlink"}
 
 
 def _dist(requirement: str) -> str:
@@ -269,7 +267,7 @@ def test_dependencies_are_imported_and_dask_is_the_fleet_extra():
     assert "dask" not in base and extras["fleet"] == {"dask"}
     assert extras["fleet"] <= extras["test"]  # CI installs .[test] and runs the fleet's tests
     code = "\n".join(p.read_text() for d in ("imucal", "viewer") for p in (ROOT / d).rglob("*.py"))
-    for dist in sorted((base - READERS) | extras["fleet"]):
+    for dist in sorted(base | extras["fleet"]):
         module = MODULE.get(dist, dist)
         assert re.search(rf"^\s*(import|from) {module}\b", code, re.M), f"{dist} never imported"
     users = [p for d in ("imucal", "viewer") for p in (ROOT / d).rglob("*.py")

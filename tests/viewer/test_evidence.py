@@ -143,7 +143,7 @@ def test_optimiser_cost_axis_spans_a_decade_and_the_title_says_the_fall(sample):
     axis = log_axis(np.log10(cost), min_span=1.0)
     assert axis.hi - axis.lo >= 1.0
     # the points' scene height: the whole fall is a sliver of the plot, not its full height
-    _, y, _ = _series(rrd, P.iteration_series("segment_0", "accelerometer", "log10_cost",
+    _, y, _ = _series(rrd, P.iteration_series("segment_1", "accelerometer", "log10_cost",
                                               "cost"))
     assert (y.max() - y.min()) / (axis.hi - axis.lo) < 0.01
     gyro = cost_falls(result, "gyroscope")
