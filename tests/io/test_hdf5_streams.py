@@ -92,8 +92,8 @@ def test_a_file_of_no_sensor_dataset_is_refused_in_one_line(tmp_path):
         f.create_dataset("imu_acc", data=np.zeros((10, 3)))  # has no time: left out, and said
     with pytest.raises(ImucalError) as info:
         load_session(path)
-    assert str(info.value).startswith("opt.h5: datasets: no accelerometer or gyroscope dataset "
-                                      "found (imu_acc, opt_pos, opt_quat)")
+    assert str(info.value).startswith("opt.h5: datasets: no sensor dataset found (imu_acc, "
+                                      "opt_pos, opt_quat)")
 
 
 BROAD_FILES = {  # sha256, samples
@@ -129,3 +129,27 @@ def test_a_trial_with_three_still_breaks_is_refused_naming_what_is_missing(tmp_p
     assert main(["calibrate", str(path), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert "1 distinct orientation" in err and not out.exists()
+
+
+SUNSIDED = ROOT.parent / "shared" / "data" / "sunsided_mpu6050_hmc5883l" / "full-sphere"
+
+
+@pytest.mark.skipif(not SUNSIDED.is_dir(), reason="the shared MPU6050/HMC5883L files are not here")
+def test_a_v73_file_of_one_sensor_is_that_sensor(tmp_path):
+    """A MATLAB v7.3 file per sensor: the magnetometer's compassBuffer (4 x N, time then x y z,
+    gauss, on its own clock) is a magnetometer, not an accelerometer."""
+    path = SUNSIDED / "hmc5883l_compass.mat"
+    streams = read_log(path, log_format(path), path.name).streams
+    assert [s.name for s in streams] == ["mag compassBuffer"]
+    with h5py.File(path, "r") as f:
+        ref = f["compassBuffer"][()].T  # MATLAB's column-major 4 x N
+    mag = streams[0]
+    assert mag.samples == len(ref) == 8190
+    np.testing.assert_array_equal(mag.t, ref[:, 0])
+    np.testing.assert_array_equal(mag.values[[0, -1]], ref[[0, -1], 1:])
+    with pytest.raises(ImucalError, match="no accelerometer stream to calibrate"):
+        load_session(path)
+    # the two-file session of the same folder stays on the table loader's path
+    sess = load_session(SUNSIDED / "mpu6050_accelerometer.mat",
+                        gyro_path=SUNSIDED / "mpu6050_gyroscope.mat")
+    assert len(sess.acc) == len(sess.gyro) == 10528

@@ -76,10 +76,16 @@ def is_stream_file(path: Path) -> bool:
         top = {n.lower() for n in sets if "/" not in n}
         if top & set(_LEGACY):
             return False
+        kinds = {n: _kind(n.rsplit("/", 1)[-1]) for n in sets}
+        named = {n: k for n, k in kinds.items() if k is not None}
         matrices = [n for n, d in sets.items() if min(d.shape + (9,)) > 1 and d.ndim == 2]
         if len(matrices) <= 1:
-            return False  # one matrix (the thesis's layout) or none: the table loader's
-        return sum(_kind(n.rsplit("/", 1)[-1]) in ("acc", "gyro") for n in sets) >= 1
+            # One matrix: the thesis's layout (any name), unless its name says which one sensor
+            # it holds and its shape fits that sensor (compassBuffer: 4 x N, time then x y z).
+            return bool(named) and all(
+                min(sets[n].shape) in ((1, 2) if k == "temp" else (3, 4))
+                for n, k in named.items())
+        return any(k in ("acc", "gyro") for k in named.values())
 
 
 def read_streams(path: Path, source: str, keep, key: str = "hdf5") -> StreamSet:
@@ -99,10 +105,10 @@ def read_streams(path: Path, source: str, keep, key: str = "hdf5") -> StreamSet:
                 notes.append(made)
             else:
                 streams.append(made)
-    if not any(s.kind in ("acc", "gyro") for s in streams):
+    if not streams:
         named = ", ".join(sorted(sets)) or "no numeric datasets"
-        raise ImucalError(f"no accelerometer or gyroscope dataset found ({named}); name them "
-                          "like acc, gyro, imu_acc, accelBuffer", source=source,
+        raise ImucalError(f"no sensor dataset found ({named}); name them like acc, gyro, "
+                          "imu_acc, accelBuffer, compassBuffer, temperature", source=source,
                           field="datasets")
     return StreamSet(source, "HDF5", tuple(streams), notes=tuple(notes))
 
