@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal.errors import ImucalError, plural
+from imucal.io.formats.clock import in_time_order
 from imucal.streams import Stream, StreamSet
 
 FORMAT_NAMES = {"dataflash": "ArduPilot DataFlash log", "tlog": "MAVLink telemetry log"}
@@ -416,17 +417,8 @@ def _streams(instance: str, layout: _Layout, rows: _Rows, key: str,
         t = table[:, rows.columns["_receive"]] * layout.clock_units
         time_source = "the tlog's receive time (the message's own time is zero)"
         local.append(f"{instance}: {clock} is zero throughout; the tlog's receive time is used")
-    order = np.argsort(t, kind="stable")
-    if (np.diff(order) != 1).any():
-        local.append(f"{instance}: messages not in time order; sorted")
-    ts = t[order]
-    first = np.ones(len(ts), dtype=bool)
-    first[1:] = ts[1:] != ts[:-1]
-    if not first.all():
-        local.append(f"{instance}: {plural(int((~first).sum()), 'repeated stamp')} dropped "
-                     "(the first message of each stamp kept)")
-    order = order[first]
-    seconds = ts[first] / layout.clock_units
+    ts, order = in_time_order(t, instance, local)
+    seconds = ts / layout.clock_units
     notes.extend(local)
     origin_base = f"{FORMAT_NAMES[key]} message {instance}"
     kinds = {tr.kind for tr in layout.triads}

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from imucal.errors import ImucalError, plural
+from imucal.io.formats.clock import in_time_order
 from imucal.streams import Stream, StreamSet
 
 IMU = "sensor_msgs/msg/Imu"
@@ -605,16 +606,8 @@ def _clock(topic: str, d: _Decoded) -> tuple[np.ndarray, str, list[str], np.ndar
             notes.append(f"{topic}: {plural(int(unset.sum()), 'message')} with a zero "
                          "header.stamp dropped")
             rows, ns = rows[~unset], ns[~unset]
-    order = np.argsort(ns, kind="stable")
-    if (np.diff(order) < 0).any():
-        notes.append(f"{topic}: messages were not in time order; sorted")
-    ns, order = ns[order], rows[order]
-    keep = np.ones(len(ns), bool)
-    keep[1:] = ns[1:] != ns[:-1]
-    if not keep.all():
-        notes.append(f"{topic}: {plural(int((~keep).sum()), 'repeated stamp')} dropped "
-                     "(the first message of each stamp kept)")
-    return ns[keep], source, notes, order[keep]
+    ns, order = in_time_order(ns, topic, notes)
+    return ns, source, notes, rows[order]
 
 
 def _streams(topic: str, msgtype: str, d: _Decoded,

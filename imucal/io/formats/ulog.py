@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal.errors import ImucalError, plural
+from imucal.io.formats.clock import in_time_order
 from imucal.streams import Stream, StreamSet
 
 SENSOR_TOPICS = ("sensor_accel", "sensor_gyro", "sensor_mag", "sensor_combined")
@@ -299,17 +300,8 @@ def _no_sensors(names: list[str], source: str) -> None:
 
 def _clock(topic: _Topic, t_us: np.ndarray, notes: list[str]):
     """Seconds, and the order that sorts them with repeated stamps dropped (first kept)."""
-    order = np.argsort(t_us, kind="stable")
-    if (np.diff(order) != 1).any():
-        notes.append(f"{topic.instance}: samples not in time order; sorted")
-    t_sorted = t_us[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = t_sorted[1:] != t_sorted[:-1]
-    if not first.all():
-        notes.append(f"{topic.instance}: {plural(int((~first).sum()), 'repeated stamp')} "
-                     "dropped (the first sample of each stamp kept)")
-    order = order[first]
-    return t_sorted[first].astype(np.float64) / 1e6, order  # division: correctly rounded
+    t_sorted, order = in_time_order(t_us, topic.instance, notes, unit="sample")
+    return t_sorted.astype(np.float64) / 1e6, order  # division: correctly rounded
 
 
 def describe_device(device_id: int) -> str:
