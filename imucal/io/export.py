@@ -50,11 +50,13 @@ def write_session_mat(path: str | os.PathLike, session: Session, gyro_unit: str 
 
 def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str | None = None,
                       *, preamble: dict[str, float] | None = None,
-                      cut_last_line: bool = False) -> None:
+                      cut_last_line: bool = False, mag: bool = False) -> None:
     """A session as one CSV table, as a logger writes it: ``t,ax,ay,az,gx,gy,gz``; with a
     ``preamble`` of ``key,value`` lines above the header and no time column instead (the rate
     is in the preamble); ``cut_last_line`` ends the file in the middle of its last row, as a
-    logger killed mid-write leaves it. Numbers are written to round-trip exactly."""
+    logger killed mid-write leaves it; ``mag``: the session's first magnetometer in columns
+    ``mx,my,mz`` on the rows of its timestamps (each one an accelerometer timestamp), empty
+    on the others. Numbers are written to round-trip exactly."""
     if not session.has_gyro or not np.array_equal(session.t_acc, session.t_gyro):
         raise ValueError("a CSV session needs the gyroscope at the accelerometer's timestamps")
     gyro = session.gyro
@@ -62,6 +64,17 @@ def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str 
         gyro = np.rad2deg(gyro)
     columns = [session.acc, gyro]
     names = ["ax", "ay", "az", "gx", "gy", "gz"]
+    if mag:
+        stream = next(s for s in session.others if s.kind == "mag")
+        rows = np.searchsorted(session.t_acc, stream.t)
+        rows = np.minimum(rows, len(session.t_acc) - 1)
+        if not np.allclose(session.t_acc[rows], stream.t, rtol=0, atol=1e-9):
+            raise ValueError("a CSV holds the magnetometer on the accelerometer's rows: its "
+                             "rate must divide the accelerometer's")
+        m = np.full((len(session.t_acc), 3), np.nan)
+        m[rows] = stream.values
+        columns.append(m)
+        names += ["mx", "my", "mz"]
     head = ""
     if preamble is None:
         columns.insert(0, session.t_acc[:, None])
@@ -70,7 +83,7 @@ def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str 
         head = "".join(f"{key},{value:g}\n" for key, value in preamble.items())
     buf = io.StringIO()
     np.savetxt(buf, np.hstack(columns), fmt="%.17g", delimiter=",")
-    text = head + ",".join(names) + "\n" + buf.getvalue()
+    text = head + ",".join(names) + "\n" + buf.getvalue().replace("nan", "")
     if cut_last_line:
         last = text.rindex("\n", 0, len(text) - 1) + 1
         text = text[: last + (len(text) - last) // 2]  # half a row, no newline after it
