@@ -141,3 +141,58 @@ def test_an_undisturbed_broad_trial_has_no_disturbance(shared_data):
     assert not fit.disturbances and fit.used.all()
     assert 40 < fit.field < 50  # uT, Berlin indoors
     assert fit.R_am is None and fit.warnings[0].code == "mag_no_alignment"  # 5 still breaks
+
+
+def test_synth_writes_a_magnetometer_that_calibrate_fits_and_writes_for_a_script(tmp_path):
+    """imucal synth --mag-rate: mx, my, mz in the CSV, the truth in the truth file; calibrate
+    puts the magnetometer's section in calib.json, and its numbers, applied by a script as
+    the model says, give the field of the truth."""
+    import json
+
+    from imucal.cli import main
+
+    out, cal = tmp_path / "s.csv", tmp_path / "cal.json"
+    assert main(["synth", str(out), "--poses", "20", "--seed", "3", "--acc-rate", "50",
+                 "--still", "2", "--move", "1.5", "--mag-rate", "25", "--mag-dip", "50",
+                 "--mag-disturbance", "30", "40"]) == 0
+    truth = json.loads((tmp_path / "s.truth.json").read_text())["magnetometer"]
+    assert truth["dip_deg"] == 50 and truth["disturbance"] == [30, 40]
+    assert main(["calibrate", str(out), "--out", str(cal)]) == 0
+    sec = json.loads(cal.read_text())["magnetometer"]
+    assert sec["calibrated"] and 14 <= sec["quality"]["still_blocks"] < 20  # disturbed: out
+    assert sec["unit"] is None  # mx, my, mz: a column name without a unit
+    for key in ("M", "b", "field", "dip_deg"):
+        err = np.abs(np.subtract(sec[key], truth[key]))
+        assert np.all(err < 3.5 * np.asarray(sec["std"][key])), key
+    assert _angle_deg(np.array(sec["R_am"]), np.array(truth["R_am"])) < 0.1
+    [d] = sec["disturbances"]
+    assert d["kind"] == "norm" and 28 < d["t_start"] < 31 and 39 < d["t_end"] < 42
+    # a script applies the section: m = R_am M (m_raw - b)
+    M, b, R = (np.array(sec[k]) for k in ("M", "b", "R_am"))
+    body = np.array([0.2, -0.1, -0.4])
+    raw = np.linalg.solve(np.array(truth["M"]), np.array(truth["R_am"]).T @ body) + truth["b"]
+    np.testing.assert_allclose(R @ M @ (raw - b), body, atol=2e-3)
+    # no magnetometer: no section
+    assert main(["synth", str(tmp_path / "p.csv"), "--poses", "12", "--seed", "3"]) == 0
+    assert main(["calibrate", str(tmp_path / "p.csv"), "--out", str(cal)]) == 0
+    assert "magnetometer" not in json.loads(cal.read_text())
+    assert main(["synth", str(tmp_path / "p.mat"), "--mag-rate", "25"]) == 2  # CSV only
+
+
+def test_the_magnetometer_mag_names_is_the_one_calibrated(tmp_path):
+    from imucal.io.load import load_session
+    from imucal.io.select import find
+
+    s, _ = make_session(poses=10, seed=1, acc_rate=50.0, mag_rate=25.0)
+    streams = (Stream("mag", "MAG", s.others[0].t, s.others[0].values, "gauss", "log"),
+               Stream("mag", "MAG2", s.others[0].t, -s.others[0].values, "gauss", "log"))
+    from imucal.streams import StreamSet
+
+    assert find(StreamSet("x", "t", streams), "mag", "mag2").instance == "MAG2"
+    import imucal.io.load as load
+
+    assert [x.instance for x in load._named_mag_first(streams, "MAG2", "x")] == ["MAG2", "MAG"]
+    assert load._named_mag_first(streams, None, "x") is streams
+    with pytest.raises(imucal.ImucalError, match="--mag: no magnetometer stream 'MAG9'"):
+        load._named_mag_first(streams, "MAG9", "x")
+    assert load_session  # the loader applies it to every file (tables and logs)
