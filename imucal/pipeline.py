@@ -20,7 +20,7 @@ from imucal.stages.accel import (
     select_points,
 )
 from imucal.stages.accel_cv import leave_one_block_out
-from imucal.stages.apply import Calibration, SegmentModels
+from imucal.stages.apply import Calibration, MagModel, SegmentModels
 from imucal.stages.detect import Detection
 from imucal.stages.detect_score import count_orientations
 from imucal.stages.detect_tuning import tune_detector
@@ -133,6 +133,10 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                             [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None],
                             gyro_rows)
     magnetometer = _magnetometer(session, block_times, up, warnings)
+    if magnetometer is not None:  # Result.calibrated and --calibrated then hold mx, my, mz
+        calibration = dataclasses.replace(calibration, mag=MagModel(
+            M=magnetometer.M, b=magnetometer.b, unit=magnetometer.unit,
+            R_am=np.eye(3) if magnetometer.R_am is None else magnetometer.R_am))
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
                   quality=quality, g_in=g_in, warnings=warnings, guide=guide,

@@ -179,7 +179,8 @@ def apply(
              f"calibration     {calibration}: {len(cal.segments)} segment(s)",
              f"output          accelerometer in {signals.acc_unit} (median |a| "
              f"{float(np.median(norm)):.5g}, |g| = {cal.g:g})"
-             + (", gyroscope in rad/s" if signals.gyro is not None else "")]
+             + (", gyroscope in rad/s" if signals.gyro is not None else "")
+             + _mag_output(out, signals)]
     if sess.has_gyro and signals.gyro is None:
         lines.append("warnings:\n  - the calibration has no gyroscope model: gyroscope not "
                      "written")
@@ -189,6 +190,19 @@ def apply(
     lines += [f"wrote {w}" for w in written_tables(Path(out), signals)]
     lines += removed_lines(tx.removed, signals)
     print("\n".join(lines))
+
+
+def _mag_output(out: str | Path, signals) -> str:
+    """What became of the magnetometer: calibrated (M6) beside the others, or kept out of a
+    table because its clock is its own."""
+    from imucal.io.export import mag_rows
+
+    if signals.mag is None:
+        return ""
+    if Path(out).suffix.lower() == ".mat" or mag_rows(signals) is not None:
+        return ", magnetometer (mx, my, mz) in its raw unit"
+    return (", magnetometer not written: its clock is its own (write OUT.mat for its "
+            "mag and t_mag)")
 
 
 @app.command()

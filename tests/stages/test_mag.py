@@ -172,6 +172,22 @@ def test_synth_writes_a_magnetometer_that_calibrate_fits_and_writes_for_a_script
     body = np.array([0.2, -0.1, -0.4])
     raw = np.linalg.solve(np.array(truth["M"]), np.array(truth["R_am"]).T @ body) + truth["b"]
     np.testing.assert_allclose(R @ M @ (raw - b), body, atol=2e-3)
+    # imucal apply writes mx, my, mz on the rows the magnetometer has, |m| the field outside
+    # the magnet's interval
+    import polars as pl
+
+    assert main(["apply", str(cal), str(out), "--out", str(tmp_path / "c.csv")]) == 0
+    table = pl.read_csv(tmp_path / "c.csv").drop_nulls()
+    norm = np.linalg.norm(table.select("mx", "my", "mz").to_numpy(), axis=1)
+    clean = ~table["t"].is_between(29.0, 41.0).to_numpy()
+    assert len(norm) == sec["samples"]  # every magnetometer sample, on its own row
+    assert abs(np.mean(norm[clean]) - 0.5) < 1e-3 and abs(np.std(norm[clean]) - 0.002) < 5e-4
+    bad = json.loads(cal.read_text())
+    bad["magnetometer"]["M"] = [[1, 0, 0], [0, 1, 0], [0, 0, 0]]
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(imucal.ImucalError, match="magnetometer: malformed calibration: M is "
+                                                 "singular"):
+        imucal.load_calibration(tmp_path / "bad.json")
     # no magnetometer: no section
     assert main(["synth", str(tmp_path / "p.csv"), "--poses", "12", "--seed", "3"]) == 0
     assert main(["calibrate", str(tmp_path / "p.csv"), "--out", str(cal)]) == 0
