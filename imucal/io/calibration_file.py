@@ -178,7 +178,8 @@ def _magnetometer_keys(result: Result) -> dict:
                                      "note": "|m| / field - 1; held out: each half of the "
                                              "recording's time judged by the other's fit"},
                     "dip_spread_deg": _f(q.dip_spread_deg), "coverage": _f(q.coverage),
-                    "missing": q.missing, "still_blocks": q.blocks},
+                    "missing": q.missing, "still_blocks": q.blocks,
+                    "heading_std_deg": _f(q.heading_std_deg)},
         "samples": fit.samples, "samples_used": int(fit.used.sum()), "start": fit.start,
         "disturbances": [d.to_dict() for d in fit.disturbances]}}
 

@@ -125,6 +125,9 @@ class MagQuality:
     coverage: float  # fraction of the sphere's directions the field reached
     missing: str | None  # the direction not reached, in plain words; None: coverage is good
     blocks: int  # still blocks R_am and the dip were fitted on
+    # the heading's standard error that the parameters' covariance predicts, RMS over the
+    # still poses (deg); None without R_am
+    heading_std_deg: float | None = None
 
 
 @dataclass(frozen=True)
@@ -393,6 +396,35 @@ def _joint(x: np.ndarray, fit: EllipsoidFit, R0: np.ndarray, dip0: float,
     return p, R, np.linalg.pinv(J.T @ J)
 
 
+def _headings(p: np.ndarray, R0: np.ndarray, raw_means: np.ndarray, u: np.ndarray
+              ) -> np.ndarray:
+    """Each still pose's heading (rad) from the calibrated field in the accelerometer's
+    frame: its horizontal part (normal to ``u``) against the horizontal part of the
+    accelerometer's x axis (its y axis where x points nearly up)."""
+    G = sym_from_vec(p[:6])
+    R = Rotation.from_rotvec(p[9:12]).as_matrix() @ R0
+    m = ((raw_means - p[6:9]) @ G) @ R.T
+    ref = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = _unit(ref - np.sum(ref * u, axis=1, keepdims=True) * u)
+    e2 = np.cross(u, e1)
+    return np.arctan2(np.sum(m * e2, axis=1), np.sum(m * e1, axis=1))
+
+
+def _heading_std_deg(p: np.ndarray, R: np.ndarray, cov: np.ndarray, raw_means: np.ndarray,
+                     u: np.ndarray) -> float:
+    """The heading's standard error at each still pose that the covariance of the 13
+    parameters predicts (their derivatives by central differences), RMS over the poses."""
+    J = np.empty((len(u), 13))
+    scale = np.sqrt(np.maximum(np.diag(cov), 1e-30))
+    for k in range(13):
+        e = np.zeros(13)
+        e[k] = 1e-3 * scale[k]
+        d = _headings(p + e, R, raw_means, u) - _headings(p - e, R, raw_means, u)
+        J[:, k] = np.angle(np.exp(1j * d)) / (2 * e[k])
+    var = np.einsum("ij,jk,ik->i", J, cov, J)
+    return float(np.degrees(np.sqrt(np.mean(var))))
+
+
 def _derived(p9: np.ndarray) -> np.ndarray:
     """``(M's 6 entries, F, b)`` of ``(G's 6 entries, b)``: ``F = det(G)^(-1/3)``,
     ``M = F G``."""
@@ -472,7 +504,7 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
     B = 0 if block_times is None else len(block_times)
     block_dip = np.full(B, np.nan)
     block_used = np.zeros(B, bool)
-    R = dip = None
+    R = dip = heading = None
     std_R = std_dip = None
     if B:
         means, ok = _block_means(x, t, keep, np.asarray(block_times, float))
@@ -504,6 +536,7 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
             ok = ok & ~off
         if R is not None:
             block_used = ok.copy()
+            heading = _heading_std_deg(p, R, cov, means[ok], u_all[ok])
             std = np.sqrt(np.diag(cov))
             std_R, std_dip = np.degrees(std[9:12]), float(np.degrees(std[12]))
             cov_out = cov
@@ -537,7 +570,7 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
     quality = MagQuality(norm_rms_pct=float(100 * np.sqrt(np.mean(r_in * r_in))),
                          norm_rms_held_out_pct=_held_out_pct(xk, tk),
                          dip_spread_deg=dip_spread, coverage=covered, missing=missing,
-                         blocks=int(block_used.sum()))
+                         blocks=int(block_used.sum()), heading_std_deg=heading)
     if disturbances:
         left = int((~keep).sum())
         warnings.insert(0, RunWarning(
