@@ -514,8 +514,14 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
                 R = dip = None
                 break
             h = _unit((means[ok] - fit.c) @ fit.G)
-            R0, s0 = _closed_form_rotation(u_all[ok], h)
-            p, R, cov = _joint(xs, fit, R0, float(np.arcsin(s0)), means[ok], u_all[ok])
+            try:
+                R0, s0 = _closed_form_rotation(u_all[ok], h)
+                p, R, cov = _joint(xs, fit, R0, float(np.arcsin(s0)), means[ok], u_all[ok])
+            except (ValueError, np.linalg.LinAlgError) as e:  # blocks that determine nothing
+                R = dip = None
+                warnings.append(RunWarning("mag_no_alignment", "the rotation to the "
+                                           f"accelerometer could not be fitted ({e})"))
+                break
             fit = EllipsoidFit(G=sym_from_vec(p[:6]), c=p[6:9], cov=cov[:9, :9], rms=fit.rms,
                                n=fit.n, start=fit.start, cond=fit.cond)
             dip = float(p[12])
@@ -540,7 +546,7 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
             std = np.sqrt(np.diag(cov))
             std_R, std_dip = np.degrees(std[9:12]), float(np.degrees(std[12]))
             cov_out = cov
-        else:
+        elif not any(w.code == "mag_no_alignment" for w in warnings):
             warnings.append(RunWarning(
                 "mag_no_alignment", f"only {int(ok.sum())} still blocks hold undisturbed "
                 f"magnetometer samples ({MIN_BLOCKS} needed): the rotation to the "

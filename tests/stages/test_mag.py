@@ -241,3 +241,23 @@ def test_the_magnetometer_mag_names_is_the_one_calibrated(tmp_path):
     with pytest.raises(imucal.ImucalError, match="--mag: no magnetometer stream 'MAG9'"):
         load._named_mag_first(streams, "MAG9", "x")
     assert load_session  # the loader applies it to every file (tables and logs)
+
+
+def test_a_magnetometer_that_cannot_be_calibrated_is_said_and_the_rest_calibrates():
+    """A stream that holds no field (a ramp: points on a line) leaves the accelerometer and
+    gyroscope as they were and says why the magnetometer has no calibration."""
+    from dataclasses import replace
+
+    from imucal.io.calibration_file import result_to_dict
+
+    s, _ = make_session(poses=12, seed=2, acc_rate=50.0)
+    t = s.t_acc[::2]
+    ramp = Stream("mag", "m", t, np.column_stack([t, 2 * t, -t]) * 1e-3, "uT", "table")
+    r = imucal.calibrate(replace(s, others=(ramp,)))
+    plain = imucal.calibrate(s)
+    np.testing.assert_array_equal(r.segments[0].acc.model.b, plain.segments[0].acc.model.b)
+    assert r.magnetometer is None and r.calibration.mag is None
+    [w] = [w for w in r.warnings if w.code == "mag_not_calibrated"]
+    assert w.message.startswith("the magnetometer (mag m) is not calibrated: ")
+    sec = result_to_dict(r)["magnetometer"]
+    assert sec["calibrated"] is False and sec["reasons"][-1] == w.message
