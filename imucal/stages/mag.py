@@ -365,7 +365,7 @@ def _joint(x: np.ndarray, fit: EllipsoidFit, R0: np.ndarray, dip0: float,
         dof_s, dof_b = len(x) - 9.0, len(u) - 4.0
         if sig is not None:
             J = jac(p, R, sig)
-            lev = np.einsum("ij,jk,ik->i", J, np.linalg.pinv(J.T @ J), J)
+            lev = np.einsum("ij,jk,ik->i", J, _inverse_normal(J), J)
             dof_s, dof_b = len(x) - lev[:len(x)].sum(), len(u) - lev[len(x):].sum()
         return (max(float(np.sqrt(rs @ rs / max(dof_s, 1.0))), 1e-12),
                 max(float(np.sqrt(rb @ rb / max(dof_b, 1.0))), 1e-12))
@@ -393,7 +393,16 @@ def _joint(x: np.ndarray, fit: EllipsoidFit, R0: np.ndarray, dip0: float,
         p[9:12] = 0.0
         sig = spreads(p, R, sig)
     J = jac(p, R, sig)
-    return p, R, np.linalg.pinv(J.T @ J)
+    return p, R, _inverse_normal(J)
+
+
+def _inverse_normal(J: np.ndarray) -> np.ndarray:
+    """``(J'J)^-1`` with the columns scaled to unit norm first: in tesla the ellipsoid's
+    entries are 1e4 and the centre's 1e-5, and ``J'J`` unscaled spans 1e18, where a
+    pseudo-inverse truncates real directions."""
+    d = 1.0 / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    Js = J * d
+    return np.linalg.pinv(Js.T @ Js) * np.outer(d, d)
 
 
 def _headings(p: np.ndarray, R0: np.ndarray, raw_means: np.ndarray, u: np.ndarray

@@ -261,3 +261,28 @@ def test_a_magnetometer_that_cannot_be_calibrated_is_said_and_the_rest_calibrate
     assert w.message.startswith("the magnetometer (mag m) is not calibrated: ")
     sec = result_to_dict(r)["magnetometer"]
     assert sec["calibrated"] is False and sec["reasons"][-1] == w.message
+
+
+@pytest.mark.parametrize("unit, scale, offset", [("T", 1e-4, 0.0), ("counts", 4000.0, 32768.0),
+                                                 ("mG", 1000.0, 0.0)])
+def test_any_unit_gives_the_same_calibration_and_standard_errors(unit, scale, offset):
+    """Tesla (1e-5), counts around 32768, milligauss: the same fit as in gauss, scaled (the
+    covariance is inverted on unit columns: unscaled, tesla's J'J spans 1e18 and the
+    standard errors came out 1e9 too small)."""
+    from dataclasses import replace
+
+    s, truth = make_session(poses=16, seed=0, still=2.0, move=1.5, init_still=2.0,
+                            acc_rate=50.0, mag_rate=25.0)
+    blocks = truth.pose_times - np.array([0.0, 0.02])
+    up = truth.acc.apply(block_means(s.acc, samples_within(s.t_acc, blocks)))
+    ref = calibrate_magnetometer(s.others[0], blocks, up)
+    m = s.others[0]
+    fit = calibrate_magnetometer(replace(m, values=m.values * scale + offset, unit=unit),
+                                 blocks, up)
+    assert fit.field / scale == pytest.approx(ref.field, rel=1e-9)
+    np.testing.assert_allclose((fit.b - offset) / scale, ref.b, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fit.M, ref.M, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fit.R_am, ref.R_am, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fit.std_b / scale, ref.std_b, rtol=1e-5)
+    assert fit.std_field / scale == pytest.approx(ref.std_field, rel=1e-5)
+    np.testing.assert_allclose(fit.std_R_am_deg, ref.std_R_am_deg, rtol=1e-5)
