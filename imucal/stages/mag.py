@@ -476,9 +476,9 @@ def _missing_words(uncovered: np.ndarray, frame: str) -> str:
     if np.linalg.norm(v) < 0.3:  # missing all round: name one of the missing directions
         v = uncovered[0]
     words = axis_words(v)
-    return (f"the field never pointed along the {frame}'s {words} axis: turn the device so "
-            f"that its {words} axis points towards magnetic north and down along the field "
-            "(e.g. upside down about an axis that points north)")
+    return (f"the field never pointed along the {frame}'s {words}: turn the device so that "
+            f"its {words} side faces magnetic north and down, along the field (turning it "
+            "upside down about an axis that points north reaches the directions missing)")
 
 
 def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None,
