@@ -27,9 +27,12 @@ Estimation, in order:
 3. ``R_am`` and the dip from the still blocks of the accelerometer's calibration: the
    magnetometer's samples inside each block's time interval (its own clock) averaged to
    ``h_k``, then ``u_k . R_am h_k = -sin(dip)`` solved in closed form (linear in the nine
-   entries of ``R_am`` and ``sin dip``, projected on the rotations), refined, and finally
-   everything refined jointly (samples and blocks, each weighted by its own residual spread),
-   whose Jacobian gives the standard errors of every parameter;
+   entries of ``R_am`` and ``sin dip``, projected on the rotations) and refined with the
+   ellipsoid held at the samples' fit; the standard errors: the ellipsoid's from the samples'
+   Jacobian, ``R_am``'s and the dip's from the blocks' spread with the ellipsoid's errors
+   carried through (a joint fit of samples and blocks lets the blocks pull the ellipsoid, and
+   with them the accelerometer's own calibration errors, which are in no covariance here: its
+   standard errors of b came out 1.9x too small through the whole pipeline, 20 seeds);
 4. quality: the norm residual in % of the field in-sample and held out (fit on one half of the
    recording's time, judged on the other, and back), the dip spread over the still blocks,
    the fraction of field directions covered and, when short, the direction missing.
@@ -340,60 +343,46 @@ def _block_residuals(p: np.ndarray, R0: np.ndarray, raw_means: np.ndarray, u: np
     return np.einsum("ki,ij,kj->k", u, R, h) + np.sin(p[12])
 
 
-def _joint(x: np.ndarray, fit: EllipsoidFit, R0: np.ndarray, dip0: float,
-           raw_means: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every parameter refined together on the samples and the blocks, each set weighted by
-    its own residual spread; returns ``p`` (13, with ``d = 0`` about the returned ``R``),
-    ``R`` and the covariance of ``p``.
+def _sequential(fit: EllipsoidFit, R0: np.ndarray, dip0: float, raw_means: np.ndarray,
+                u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """R_am and the dip fitted on the blocks with the ellipsoid held at the samples' fit;
+    returns ``p`` (13, ``d = 0`` about the returned ``R``), ``R`` and the covariance of ``p``:
+    the ellipsoid's own (the samples'), and for ``(d, dip)`` the blocks' spread plus the
+    ellipsoid's errors carried through, ``A C A'`` with ``A = -(J2'J2)^-1 J2' J1`` (J1, J2
+    the block residuals' derivatives by the ellipsoid's and by ``(d, dip)``'s parameters)."""
+    g = fit.params
+    R = R0
 
-    The spreads are measured at the solution with each set's own degrees of freedom: its
-    rows less the parameters they fit (the sum of their leverages, the diagonal of the hat
-    matrix ``J (J'J)^-1 J'``). The blocks are few, and besides R_am and the dip they pull on
-    the ellipsoid where the samples leave it loose: ``B - 4`` would understate their spread
-    (R_am's errors by 1.5-2x over 20 seeds of 12 poses), the closed-form start's spread
-    overstate it (by 2x)."""
-    from imucal.numerics.ellipsoid import _res_jac
+    def rb(q: np.ndarray, R: np.ndarray) -> np.ndarray:
+        return _block_residuals(np.r_[g, q], R, raw_means, u)
 
-    # the parameters' natural scales, for the finite differences of the block rows
+    q = np.r_[np.zeros(3), dip0]
+    for _ in range(2):  # the second pass starts at d = 0 about the first's rotation
+        q = least_squares(rb, q, args=(R,), method="lm").x
+        R = Rotation.from_rotvec(q[:3]).as_matrix() @ R
+        q[:3] = 0.0
+    p = np.r_[g, q]
+    # the parameters' natural scales, for the finite differences
     step = np.r_[np.full(6, 1e-6 * np.abs(fit.G).max()), np.full(3, 1e-6 / np.abs(fit.G).max()),
                  np.full(4, 1e-7)]
-
-    def spreads(p: np.ndarray, R: np.ndarray, sig: tuple[float, float] | None
-                ) -> tuple[float, float]:
-        rs = _res_jac(p[:9], x)[0]
-        rb = _block_residuals(p, R, raw_means, u)
-        dof_s, dof_b = len(x) - 9.0, len(u) - 4.0
-        if sig is not None:
-            J = jac(p, R, sig)
-            lev = np.einsum("ij,jk,ik->i", J, _inverse_normal(J), J)
-            dof_s, dof_b = len(x) - lev[:len(x)].sum(), len(u) - lev[len(x):].sum()
-        return (max(float(np.sqrt(rs @ rs / max(dof_s, 1.0))), 1e-12),
-                max(float(np.sqrt(rb @ rb / max(dof_b, 1.0))), 1e-12))
-
-    def res(p: np.ndarray, R: np.ndarray, sig: tuple[float, float]) -> np.ndarray:
-        return np.r_[_res_jac(p[:9], x)[0] / sig[0],
-                     _block_residuals(p, R, raw_means, u) / sig[1]]
-
-    def jac(p: np.ndarray, R: np.ndarray, sig: tuple[float, float]) -> np.ndarray:
-        Js = np.zeros((len(x), 13))
-        Js[:, :9] = _res_jac(p[:9], x)[1] / sig[0]
-        Jb = np.empty((len(u), 13))
-        for k in range(13):  # 13 central differences of B block rows: no per-sample loop
-            e = np.zeros(13)
-            e[k] = step[k]
-            Jb[:, k] = (_block_residuals(p + e, R, raw_means, u)
-                        - _block_residuals(p - e, R, raw_means, u)) / (2 * step[k] * sig[1])
-        return np.vstack([Js, Jb])
-
-    p, R = np.r_[fit.params, np.zeros(3), dip0], R0
-    sig = spreads(p, R, None)
-    for _ in range(3):  # weights from the start's spreads, then from the solution's
-        p = least_squares(res, p, jac=jac, args=(R, sig), method="trf", x_scale="jac").x
-        R = Rotation.from_rotvec(p[9:12]).as_matrix() @ R
-        p[9:12] = 0.0
-        sig = spreads(p, R, sig)
-    J = jac(p, R, sig)
-    return p, R, _inverse_normal(J)
+    J = np.empty((len(u), 13))
+    for k in range(13):  # central differences of B block rows: no per-sample loop
+        e = np.zeros(13)
+        e[k] = step[k]
+        J[:, k] = (_block_residuals(p + e, R, raw_means, u)
+                   - _block_residuals(p - e, R, raw_means, u)) / (2 * step[k])
+    r = _block_residuals(p, R, raw_means, u)
+    s2 = float(r @ r) / max(len(u) - 4, 1)
+    J1, J2 = J[:, :9], J[:, 9:]
+    N2 = _inverse_normal(J2)
+    A = -N2 @ J2.T @ J1
+    C11 = fit.cov
+    cov = np.zeros((13, 13))
+    cov[:9, :9] = C11
+    cov[9:, 9:] = s2 * N2 + A @ C11 @ A.T
+    cov[9:, :9] = A @ C11
+    cov[:9, 9:] = cov[9:, :9].T
+    return p, R, cov
 
 
 def _inverse_normal(J: np.ndarray) -> np.ndarray:
@@ -508,7 +497,6 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
         f.t_start - width <= d.t_start <= f.t_end + width for f in found)] + found
     warnings: list[RunWarning] = []
     xk, tk = x[keep], t[keep]
-    xs = _subsample(xk)
 
     B = 0 if block_times is None else len(block_times)
     block_dip = np.full(B, np.nan)
@@ -525,14 +513,12 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
             h = _unit((means[ok] - fit.c) @ fit.G)
             try:
                 R0, s0 = _closed_form_rotation(u_all[ok], h)
-                p, R, cov = _joint(xs, fit, R0, float(np.arcsin(s0)), means[ok], u_all[ok])
+                p, R, cov = _sequential(fit, R0, float(np.arcsin(s0)), means[ok], u_all[ok])
             except (ValueError, np.linalg.LinAlgError) as e:  # blocks that determine nothing
                 R = dip = None
                 warnings.append(RunWarning("mag_no_alignment", "the rotation to the "
                                            f"accelerometer could not be fitted ({e})"))
                 break
-            fit = EllipsoidFit(G=sym_from_vec(p[:6]), c=p[6:9], cov=cov[:9, :9], rms=fit.rms,
-                               n=fit.n, start=fit.start, cond=fit.cond)
             dip = float(p[12])
             hh = _unit((means - fit.c) @ fit.G)
             block_dip = np.degrees(-np.arcsin(np.clip(np.einsum("ki,ij,kj->k", u_all, R, hh),
@@ -607,3 +593,4 @@ def _full_mask(finite: np.ndarray, keep: np.ndarray) -> np.ndarray:
     out = np.zeros(len(finite), bool)
     out[np.flatnonzero(finite)[keep]] = True
     return out
+
