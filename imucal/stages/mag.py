@@ -21,9 +21,13 @@ Estimation, in order:
 1. a closed-form algebraic ellipsoid fit of every sample (no hand-set guess, any unit:
    :func:`imucal.numerics.ellipsoid.algebraic_fit`), refined by maximum likelihood on every
    sample (still or not): residual ``|G (m_raw - b)| - 1``;
-2. a field that is not constant (a magnet nearby or carried along, a steel table) is found as
-   windows whose mean norm residual departs from the others' by far more than their spread,
-   left out, and the fit redone on the rest until the windows left out stop changing;
+2. a field that is not constant (a magnet nearby or carried along, a steel table) is found and
+   left out: a step of the field inside a still block (the sensor did not turn, the field
+   moved); windows whose mean norm residual departs from the others' by far more than their
+   spread, judged first by a robust fit (Cauchy loss) and then by the plain fit of the rest
+   until the windows left out stop changing; a still block whose dip departs from the others';
+   when what is left reaches too few field directions to determine an ellipsoid, the
+   magnetometer is not calibrated (:class:`MagUnfit` says why and what was found);
 3. ``R_am`` and the dip from the still blocks of the accelerometer's calibration: the
    magnetometer's samples inside each block's time interval (its own clock) averaged to
    ``h_k``, then ``u_k . R_am h_k = -sin(dip)`` solved in closed form (linear in the nine
@@ -74,8 +78,8 @@ WINDOW_MIN_SAMPLES = 25
 DISTURB_K = 8.0
 DISTURB_FLOOR = 0.005
 # A step of the field inside a still block: this many noise standard deviations of the two
-# levels' difference (a still block of 100 samples shows a 5 sigma one by chance once in
-# millions; 30 leaves room for a slow drift of the sensor's own offset).
+# levels' difference (the best split of white noise rarely reaches 4), and more than
+# STEP_FLOOR of the field's scale.
 STEP_Z = 30.0
 STEP_FLOOR = 0.03
 # A still block's dip departs when it is farther from the blocks' median than DIP_K robust
