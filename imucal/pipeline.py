@@ -132,7 +132,9 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
     guide = recording_guide(session, det, block_times, up,
                             [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None],
                             gyro_rows)
-    magnetometer = _magnetometer(session, block_times, up, warnings)
+    # the segments' blocks, in the order of ``up`` (the segments cover the blocks in order)
+    seg_times = np.concatenate([block_times[s.blocks[0]:s.blocks[1]] for s in segments])
+    magnetometer = _magnetometer(session, seg_times, up, warnings)
     if magnetometer is not None:  # Result.calibrated and --calibrated then hold mx, my, mz
         calibration = dataclasses.replace(calibration, mag=MagModel(
             M=magnetometer.M, b=magnetometer.b, unit=magnetometer.unit,
