@@ -181,6 +181,7 @@ def _magnetometer_keys(result: Result) -> dict:
                     "missing": q.missing, "still_blocks": q.blocks,
                     "heading_std_deg": _f(q.heading_std_deg)},
         "samples": fit.samples, "samples_used": int(fit.used.sum()), "start": fit.start,
+        "soft_iron_estimated": fit.soft_iron,
         "disturbances": [d.to_dict() for d in fit.disturbances]}}
 
 

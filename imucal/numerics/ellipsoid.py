@@ -96,6 +96,7 @@ class EllipsoidFit:
     n: int
     start: str  # how the algebraic start was made: "ellipsoid" or "sphere"
     cond: float  # condition number of the Jacobian (normalised parameters)
+    model: str = "ellipsoid"  # "sphere": G held at I / r, only c and r fitted
 
     @property
     def params(self) -> np.ndarray:
@@ -167,6 +168,64 @@ def is_ellipsoid(G: np.ndarray) -> bool:
     """Whether ``G`` is finite and positive definite (a closed surface, not a hyperboloid or a
     cylinder that points near a plane or a line allow)."""
     return bool(np.all(np.isfinite(G)) and np.all(np.linalg.eigvalsh(G) > 0))
+
+
+BIAS_DRAWS = 8  # simulated fits that measure the sphere fit's bias
+
+
+def _sphere_res_jac(q: np.ndarray, xn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    d = xn - q[1:4]
+    n = np.linalg.norm(d, axis=1)
+    J = np.column_stack([-n / q[0] ** 2, -d / (n * q[0])[:, None]])
+    return n / q[0] - 1.0, J
+
+
+def _sphere_ml(xn: np.ndarray, q0: np.ndarray | None = None) -> np.ndarray:
+    """``(r, c)`` of ``|x - c| = r`` by least squares on ``|x - c| / r - 1``, from the linear
+    closed form (or ``q0``)."""
+    if q0 is None:
+        sol = np.linalg.lstsq(np.column_stack([2 * xn, np.ones(len(xn))]),
+                              np.sum(xn * xn, axis=1), rcond=None)[0]
+        q0 = np.r_[np.sqrt(max(sol[3] + sol[:3] @ sol[:3], 1e-12)), sol[:3]]
+    return least_squares(lambda v: _sphere_res_jac(v, xn)[0], q0,
+                         jac=lambda v: _sphere_res_jac(v, xn)[1], method="lm",
+                         max_nfev=MAX_NFEV).x
+
+
+def sphere_fit(x: np.ndarray) -> EllipsoidFit:
+    """``|x - c| = r``: the linear closed form refined by maximum likelihood (residual
+    ``|x - c| / r - 1``), as an :class:`EllipsoidFit` with ``G = I / r``; its covariance is
+    that of ``(r, c)`` carried to the 9 parameters (``g11 = g22 = g33 = 1 / r``, the rest 0):
+    the shape is held, not estimated. For points that reach too few directions to determine
+    an ellipsoid's 9 parameters. On a cap the geometric fit's centre has a second-order bias
+    along the cap's axis, about 1.5 sigma^2 (per-axis noise sigma, the points' unit; measured
+    on a 50-degree cap of radius 43: 2-3 standard errors at noise of 0.3 % of the radius): it
+    is measured by fitting the fit's own points again with noise, and removed."""
+    x = np.asarray(x, float)
+    xn, mu, s = _normalise(x)
+    q = _sphere_ml(xn)
+    # The bias, measured: the same directions on the fitted sphere with the residuals'
+    # noise, fitted again (a parametric bootstrap, fixed seed), their mean offset removed.
+    d = xn - q[1:4]
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    sigma = q[0] * float(np.std(np.linalg.norm(d, axis=1) / q[0] - 1.0))
+    rng = np.random.default_rng(0)
+    sims = [_sphere_ml(q[1:4] + q[0] * u + rng.normal(0, sigma, u.shape), q)
+            for _ in range(BIAS_DRAWS)]
+    q = q - (np.mean(sims, axis=0) - q)
+    r, J = _sphere_res_jac(q, xn)
+    s2 = float(r @ r) / max(len(xn) - 4, 1)
+    cov4 = s2 * np.linalg.pinv(J.T @ J)
+    radius, c = q[0] * s, mu + s * q[1:4]
+    T = np.zeros((9, 4))  # d(g11, g12, g13, g22, g23, g33, c) / d(r, c), the points' unit
+    T[[0, 3, 5], 0] = -1.0 / radius ** 2
+    T[6:9, 1:4] = np.eye(3)
+    scale = np.diag([s, s, s, s])  # (r, c) normalised -> the points' unit
+    cov = T @ scale @ cov4 @ scale @ T.T
+    sv = np.linalg.svd(J, compute_uv=False)
+    return EllipsoidFit(G=np.eye(3) / radius, c=c, cov=cov, rms=float(np.sqrt(np.mean(r * r))),
+                        n=len(xn), start="sphere", cond=float(sv[0] / max(sv[-1], 1e-300)),
+                        model="sphere")
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:

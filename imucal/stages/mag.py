@@ -55,6 +55,7 @@ from imucal.numerics.ellipsoid import (
     fit_ellipsoid,
     is_ellipsoid,
     sphere_coverage,
+    sphere_fit,
     sym_from_vec,
     vec_from_sym,
 )
@@ -68,8 +69,10 @@ from imucal.warning import RunWarning
 MAX_FIT_SAMPLES = 100_000
 # ... and the search for disturbed parts, which fits again and again, at most this many.
 MAX_SEARCH_SAMPLES = 20_000
-# Below this fraction of the sphere's directions reached, no ellipsoid is determined.
+# Below this fraction of the sphere's directions reached, no ellipsoid is determined; a
+# sphere (hard iron and field, 4 parameters) down to MIN_SPHERE_COVERAGE.
 MIN_COVERAGE = 0.25
+MIN_SPHERE_COVERAGE = 0.1
 # Disturbance windows: at least 1 s and 25 samples; a window departs when its mean norm
 # residual is farther from the windows' median than DISTURB_K robust standard deviations of
 # the windows' means and than DISTURB_FLOOR of the field.
@@ -168,6 +171,9 @@ class MagFit:
     block_dip_deg: np.ndarray  # (B,) each still block's dip, NaN where it has no samples
     block_used: np.ndarray  # (B,) True where the block took part in R_am and the dip
     warnings: tuple[RunWarning, ...] = ()
+    # False: too few field directions for the ellipsoid; M held at the identity, b and the
+    # field fitted (a sphere)
+    soft_iron: bool = True
 
     @property
     def G(self) -> np.ndarray:
@@ -205,9 +211,11 @@ class MagUnfit(Exception):
 
 
 def _fit(x: np.ndarray, robust: bool, most: int = MAX_FIT_SAMPLES) -> EllipsoidFit:
-    """The ellipsoid of (at most ``most`` of) the samples ``x``; MagUnfit where there is
-    none, or where the field directions it gives reach less than MIN_COVERAGE of the sphere
-    (an ellipsoid through a patch of it is not determined: it may be any size)."""
+    """The ellipsoid of (at most ``most`` of) the samples ``x``. Where there is none, or the
+    field directions it gives reach less than MIN_COVERAGE of the sphere (an ellipsoid
+    through a patch of it is not determined: it may be any size), the sphere (hard iron and
+    field only, the soft iron held at the identity: what offsets-only tools fit) if it
+    reaches MIN_SPHERE_COVERAGE; else MagUnfit."""
     if len(x) < 20:
         raise MagUnfit(f"{len(x)} undisturbed samples, an ellipsoid needs 20 or more")
     x = _subsample(x, most)
@@ -215,16 +223,24 @@ def _fit(x: np.ndarray, robust: bool, most: int = MAX_FIT_SAMPLES) -> EllipsoidF
         fit = fit_ellipsoid(x, robust=robust)
     except (ValueError, np.linalg.LinAlgError) as e:
         raise MagUnfit(f"no ellipsoid fits the samples ({e})") from None
-    if not is_ellipsoid(fit.G):
-        raise MagUnfit("the samples determine no ellipsoid (they lie near a plane or a line: "
-                       "too few field directions)")
-    covered, _ = sphere_coverage(_unit((x[::max(1, len(x) // 5000)] - fit.c) @ fit.G),
-                                 COVERAGE_ANGLE_DEG)
-    if covered < MIN_COVERAGE:
-        raise MagUnfit(f"the undisturbed samples reach {covered:.0%} of the field's directions "
-                       f"({MIN_COVERAGE:.0%} at the least): turn the device through every "
-                       "direction, upside down included")
-    return fit
+    if is_ellipsoid(fit.G) and _coverage(x, fit) >= MIN_COVERAGE:
+        return fit
+    try:
+        sphere = sphere_fit(x)
+    except (ValueError, np.linalg.LinAlgError):
+        sphere = None
+    covered = 0.0 if sphere is None else _coverage(x, sphere)
+    if covered >= MIN_SPHERE_COVERAGE:
+        return sphere
+    raise MagUnfit(f"the undisturbed samples reach {covered:.0%} of the field's directions "
+                   f"({MIN_SPHERE_COVERAGE:.0%} at the least for the hard iron alone, "
+                   f"{MIN_COVERAGE:.0%} for the soft iron): turn the device through every "
+                   "direction, upside down included")
+
+
+def _coverage(x: np.ndarray, fit: EllipsoidFit) -> float:
+    return sphere_coverage(_unit((x[::max(1, len(x) // 5000)] - fit.c) @ fit.G),
+                           COVERAGE_ANGLE_DEG)[0]
 
 
 def _still_steps(x: np.ndarray, t: np.ndarray, block_times: np.ndarray | None
@@ -576,6 +592,12 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
                          norm_rms_held_out_pct=_held_out_pct(xk, tk),
                          dip_spread_deg=dip_spread, coverage=covered, missing=missing,
                          blocks=int(block_used.sum()), heading_std_deg=heading)
+    if fit.model == "sphere":
+        warnings.append(RunWarning(
+            "mag_soft_iron_not_estimated", f"the field reached {covered:.0%} of directions, "
+            f"too few for the soft iron ({MIN_COVERAGE:.0%} needed): M is held at the "
+            "identity and only the hard iron and the field are fitted; turn the device "
+            "through more directions for the soft iron"))
     if disturbances:
         left = int((~keep).sum())
         warnings.insert(0, RunWarning(
@@ -590,7 +612,8 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
                   std_R_am_deg=std_R, std_dip_deg=std_dip, cov=cov_out, unit=stream.unit,
                   stream=stream.name, samples=len(stream.t), used=_full_mask(finite, keep),
                   start=fit.start, disturbances=tuple(disturbances), quality=quality,
-                  block_dip_deg=block_dip, block_used=block_used, warnings=tuple(warnings))
+                  block_dip_deg=block_dip, block_used=block_used, warnings=tuple(warnings),
+                  soft_iron=fit.model != "sphere")
 
 
 def _full_mask(finite: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -59,3 +59,26 @@ def test_a_plane_of_points_is_no_ellipsoid_and_coverage_is_measured():
     covered, missing = sphere_coverage(upper, 15.0)
     assert 0.55 < covered < 0.7  # the upper half and a 15-degree rim below it
     assert np.all(missing[:, 2] < 0)
+
+
+def test_the_sphere_fit_recovers_centre_and_radius_with_its_bias_removed():
+    """Points on a cap of about 50 degrees around -z with noise of 0.7 % of the radius: the
+    plain geometric fit's centre is off by 0.13 along z (2.5 standard errors) on average;
+    with the bias measured and removed, by 0.04, and the errors over 12 draws are 0.9-1.7
+    standard errors RMS (z the worst: what is left of the bias)."""
+    from imucal.numerics.ellipsoid import sphere_fit
+
+    c, r = np.array([6.0, -3.0, 1.0]), 43.0
+    err, z = [], []
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        u = rng.normal(size=(3000, 3)) * [0.5, 0.5, 0.0] + [0.0, 0.0, -1.0]
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        fit = sphere_fit(c + r * u + rng.normal(0, 0.3, (3000, 3)))
+        assert fit.model == "sphere" and np.allclose(fit.G, np.eye(3) * fit.G[0, 0])
+        std = np.sqrt(np.diag(fit.cov))
+        err.append(fit.c - c)
+        z.append(np.r_[(1 / fit.G[0, 0] - r) / (std[0] * r * r), (fit.c - c) / std[6:9]])
+    assert abs(np.mean(err, axis=0)[2]) < 0.06
+    rms = np.sqrt(np.mean(np.square(z), axis=0))
+    assert np.all((rms > 0.6) & (rms < 2.0)), rms
