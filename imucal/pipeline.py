@@ -20,13 +20,14 @@ from imucal.stages.accel import (
     select_points,
 )
 from imucal.stages.accel_cv import leave_one_block_out
-from imucal.stages.apply import Calibration, SegmentModels
+from imucal.stages.apply import Calibration, MagModel, SegmentModels
 from imucal.stages.detect import Detection
 from imucal.stages.detect_score import count_orientations
 from imucal.stages.detect_tuning import tune_detector
 from imucal.stages.group import block_mean_variance, group_blocks
 from imucal.stages.guide import ADVISED_HOLD_S, recording_guide
 from imucal.stages.gyro import calibrate_gyroscope
+from imucal.stages.mag import MagFit, MagUnfit, calibrate_magnetometer
 from imucal.stages.quality import quality_figures
 from imucal.stages.sanity import (
     coverage_warning,
@@ -127,14 +128,46 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                               g_in, g_out)  # §5
     gyro_rows = (functools.partial(calibration.rows, session, "gyro")
                  if calibration.applies_gyro(session) else None)
-    guide = recording_guide(session, det, block_times, np.concatenate(
-        [s.acc.model.apply(det.means[s.blocks[0]:s.blocks[1]]) for s in segments]),
-        [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None], gyro_rows)
+    up = np.concatenate([s.acc.model.apply(det.means[s.blocks[0]:s.blocks[1]])
+                         for s in segments])
+    guide = recording_guide(session, det, block_times, up,
+                            [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None],
+                            gyro_rows)
     verdict = judge([SegmentFigures(s.number if several else None, s.acc_cv, s.gyro,
                                     s.orientations) for s in segments], guide)
+    # the segments' blocks, in the order of ``up`` (the segments cover the blocks in order)
+    seg_times = np.concatenate([block_times[s.blocks[0]:s.blocks[1]] for s in segments])
+    magnetometer = _magnetometer(session, seg_times, up, warnings)
+    if magnetometer is not None:  # Result.calibrated and --calibrated then hold mx, my, mz
+        calibration = dataclasses.replace(calibration, mag=MagModel(
+            M=magnetometer.M, b=magnetometer.b, unit=magnetometer.unit,
+            R_am=np.eye(3) if magnetometer.R_am is None else magnetometer.R_am))
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
-                  quality=quality, g_in=g_in, warnings=warnings, guide=guide, verdict=verdict)
+                  quality=quality, g_in=g_in, warnings=warnings, guide=guide, verdict=verdict,
+                  magnetometer=magnetometer)
+
+
+def _magnetometer(session: Session, block_times: np.ndarray, up: np.ndarray,
+                  warnings: list[RunWarning]) -> MagFit | None:
+    """The session's magnetometer (its first "mag" stream: the one ``--mag`` names is put
+    first on load) calibrated over the whole session (M6, stages/mag.py), with the still
+    blocks' calibrated gravity for its rotation to the accelerometer; what it found said in
+    ``warnings``. None without a magnetometer, or when it cannot be calibrated (said)."""
+    stream = next((s for s in session.others if s.kind == "mag"), None)
+    if stream is None:
+        return None
+    try:
+        fit = calibrate_magnetometer(stream, block_times, up)
+    except MagUnfit as e:
+        if e.disturbances:
+            warnings.append(RunWarning("mag_disturbed", "the magnetic field was not constant: "
+                                       + "; ".join(d.text() for d in e.disturbances)))
+        warnings.append(RunWarning("mag_not_calibrated", f"the magnetometer ({stream.name}) "
+                                   f"is not calibrated: {e.message}"))
+        return None
+    warnings.extend(fit.warnings)
+    return fit
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,6 +19,7 @@ from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
 from imucal.stages.guide import Guide
 from imucal.stages.gyro import GyroFit
+from imucal.stages.mag import MagFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
 from imucal.stages.verdict import Verdict
@@ -71,6 +72,9 @@ class Result:
     warnings: list[RunWarning] = field(default_factory=list)
     guide: Guide | None = None  # poses, holds and turns against the limits; what to record
     verdict: Verdict | None = None  # good / usable with caveats / not usable, and why
+    # the magnetometer over the whole session (M6, stages/mag.py); None without one, or when
+    # it could not be calibrated (the warnings say why)
+    magnetometer: MagFit | None = None
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

@@ -10,13 +10,44 @@ white noise.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from imucal.models import SensorModel, acc_T, gyro_T
 from imucal.numerics import quaternion as quat
 from imucal.session import STANDARD_GRAVITY, Session
+from imucal.streams import Stream
+
+
+@dataclass(frozen=True)
+class MagTruth:
+    """The magnetometer that made a synthetic session (model M6 of :mod:`imucal.stages.mag`):
+    ``m = R_am M (m_raw - b)`` with ``det M = 1``, ``|m| = field`` (raw unit) and the field
+    ``dip_deg`` below the horizon. ``disturbance``: ``[t0, t1)`` in which a magnet carried
+    with the sensor adds ``disturbance_field`` (raw unit, the magnetometer's frame) to the
+    reading; None: an undisturbed field throughout."""
+
+    M: np.ndarray
+    b: np.ndarray
+    R_am: np.ndarray
+    field: float
+    dip_deg: float
+    unit: str = "gauss"
+    rate: float = 50.0
+    noise: float = 0.0
+    disturbance: tuple[float, float] | None = None
+    disturbance_field: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        return {"M": self.M.tolist(), "b": self.b.tolist(), "R_am": self.R_am.tolist(),
+                "field": self.field, "dip_deg": self.dip_deg, "unit": self.unit,
+                "rate": self.rate, "noise": self.noise,
+                "disturbance": None if self.disturbance is None else list(self.disturbance),
+                "disturbance_field": None if self.disturbance_field is None
+                else self.disturbance_field.tolist(),
+                "model": "m = R_am M (m_raw - b), det M = 1, |m| = field "
+                         "(imucal.stages.mag, M6)"}
 
 
 @dataclass(frozen=True)
@@ -35,6 +66,7 @@ class Truth:
     gyro_drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
     g: float = 1.0
     pose_times: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    mag: MagTruth | None = None  # the magnetometer, when the session has one
 
     def to_dict(self) -> dict:
         def m(model: SensorModel | None) -> dict | None:
@@ -46,7 +78,8 @@ class Truth:
                 "accelerometer_after_change": m(self.acc2), "gyroscope_after_change": m(self.gyro2),
                 "t_change": self.t_change, "gyro_drift": self.gyro_drift.tolist(), "g": self.g,
                 "still_intervals": self.pose_times.tolist(),
-                "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"}
+                "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"} | (
+                    {} if self.mag is None else {"magnetometer": self.mag.to_dict()})
 
 
 def random_acc_model(rng: np.random.Generator, mis: float = 0.01, scale: float = 0.03,
@@ -126,6 +159,15 @@ def make_session(
     counts_per_g: float = 4096.0,
     gyro_unit: str = "rad/s",
     counts_per_rad_s: float = 939.65,
+    mag_rate: float | None = None,
+    mag_field: float = 0.5,
+    mag_dip_deg: float = 65.0,
+    mag_noise: float = 0.002,
+    mag_hard: np.ndarray | None = None,
+    mag_soft: np.ndarray | None = None,
+    mag_R: np.ndarray | None = None,
+    mag_disturbance: tuple[float, float] | None = None,
+    mag_disturbance_size: float = 0.3,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -139,6 +181,9 @@ def make_session(
     ``acc_unit`` "g", "m/s^2" or "counts"; ``gyro_unit`` "rad/s", "deg/s" or "counts". A
     session holds rad/s or counts (:class:`~imucal.session.Session`), so "deg/s" gives rad/s
     here: write it with ``write_session_mat(..., gyro_unit="deg/s")`` for a file in deg/s.
+
+    ``mag_rate`` (Hz) adds a magnetometer in gauss on its own clock, as the session's first
+    other stream (:func:`add_magnetometer`); the rest of the session is the same as without it.
     """
     rng = np.random.default_rng(seed)
     motion = make_motion(rng, poses, still, move, init_still)
@@ -193,7 +238,64 @@ def make_session(
                       source=f"synthetic(seed={seed}, poses={poses})")
     truth = Truth(acc=acc_truth, gyro=gyro_truth, acc2=acc2, gyro2=gyro2, t_change=t_change,
                   gyro_drift=drift, g=g, pose_times=motion.still)
+    if mag_rate is not None:
+        session, truth = add_magnetometer(
+            session, truth, motion, seed, rate=mag_rate, field=mag_field, dip_deg=mag_dip_deg,
+            noise=mag_noise, hard=mag_hard, soft=mag_soft, R_am=mag_R,
+            disturbance=mag_disturbance, disturbance_size=mag_disturbance_size)
     return session, truth
+
+
+def random_soft_iron(rng: np.random.Generator, scale: float = 0.05, cross: float = 0.02
+                     ) -> np.ndarray:
+    """A symmetric soft-iron matrix near the identity, normalised to ``det M = 1``."""
+    off = rng.normal(0, cross, 3)
+    M = np.diag(1.0 + rng.normal(0, scale, 3))
+    M[0, 1] = M[1, 0] = off[0]
+    M[0, 2] = M[2, 0] = off[1]
+    M[1, 2] = M[2, 1] = off[2]
+    return M / np.linalg.det(M) ** (1 / 3)
+
+
+def add_magnetometer(session: Session, truth: Truth, motion: Motion, seed: int, rate: float,
+                     field: float = 0.5, dip_deg: float = 65.0, noise: float = 0.002,
+                     hard: np.ndarray | None = None, soft: np.ndarray | None = None,
+                     R_am: np.ndarray | None = None,
+                     disturbance: tuple[float, float] | None = None,
+                     disturbance_size: float = 0.3) -> tuple[Session, Truth]:
+    """The session with a magnetometer (gauss) in the world field ``field (cos dip, 0, -sin
+    dip)`` (world z up, x magnetic north), read in the body frame, ``m_body =
+    R(q)' f``, and made raw by the inverse of M6: ``m_raw = M^-1 R_am' m_body + b`` plus white
+    noise ``noise`` per axis. Its own generator (``[seed, 23]``), so the accelerometer and
+    gyroscope are those of the session without it. Unset parameters are drawn: hard iron
+    about 0.2 field, soft iron 5 % scale and 2 % cross terms (det 1), ``R_am`` 2 degrees per
+    axis."""
+    rng = np.random.default_rng([seed, 23])
+    hard = rng.normal(0, 0.2 * field, 3) if hard is None else np.asarray(hard, float)
+    soft = random_soft_iron(rng) if soft is None else np.asarray(soft, float)
+    if R_am is None:
+        R_am = quat.to_matrix(quat.from_rotvec(rng.normal(0, np.radians(2.0), (1, 3))))[0]
+    direction = rng.normal(0, 1, 3)
+    duration = float(motion.still[-1, 1])
+    t = np.arange(int(duration * rate)) / rate
+    q, _ = motion.at(t)
+    dip = np.radians(dip_deg)
+    world = field * np.array([np.cos(dip), 0.0, -np.sin(dip)])
+    body = quat.rotate_inverse(q, world)
+    raw = np.linalg.solve(soft, (body @ R_am).T).T + hard  # M^-1 R_am' m_body + b
+    extra = None
+    if disturbance is not None:
+        extra = disturbance_size * field * direction / np.linalg.norm(direction)
+        inside = (t >= disturbance[0]) & (t < disturbance[1])
+        raw[inside] += np.linalg.solve(soft, extra)  # reads as extra after M: a magnet
+    raw += rng.normal(0, noise, raw.shape)
+    stream = Stream("mag", "mag", t, raw, "gauss", "synthetic magnetometer",
+                    time_source="the synthetic clock")
+    mt = MagTruth(M=soft, b=hard, R_am=R_am, field=float(field), dip_deg=float(dip_deg),
+                  rate=float(rate), noise=float(noise),
+                  disturbance=None if disturbance is None else tuple(map(float, disturbance)),
+                  disturbance_field=extra)
+    return replace(session, others=(stream, *session.others)), replace(truth, mag=mt)
 
 
 def _distort(ideal: np.ndarray, t: np.ndarray, m1: SensorModel, m2: SensorModel | None,

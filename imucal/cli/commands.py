@@ -220,7 +220,8 @@ def apply(
              f"calibration     {calibration}: {len(cal.segments)} segment(s)",
              f"output          accelerometer in {signals.acc_unit} (median |a| "
              f"{float(np.median(norm)):.5g}, |g| = {cal.g:g})"
-             + (", gyroscope in rad/s" if signals.gyro is not None else "")]
+             + (", gyroscope in rad/s" if signals.gyro is not None else "")
+             + _mag_output(out, signals)]
     if sess.has_gyro and signals.gyro is None:
         lines.append("warnings:\n  - the calibration has no gyroscope model: gyroscope not "
                      "written")
@@ -230,6 +231,19 @@ def apply(
     lines += [f"wrote {w}" for w in written_tables(Path(out), signals)]
     lines += removed_lines(tx.removed, signals)
     print("\n".join(lines))
+
+
+def _mag_output(out: str | Path, signals) -> str:
+    """What became of the magnetometer: calibrated (M6) beside the others, or kept out of a
+    table because its clock is its own."""
+    from imucal.io.export import mag_rows
+
+    if signals.mag is None:
+        return ""
+    if Path(out).suffix.lower() == ".mat" or mag_rows(signals) is not None:
+        return ", magnetometer (mx, my, mz) in its raw unit"
+    return (", magnetometer not written: its clock is its own (write OUT.mat for its "
+            "mag and t_mag)")
 
 
 @app.command()
@@ -285,6 +299,22 @@ def synth(
     cut_last_line: Annotated[bool, typer.Option(
         "--cut-last-line", help="CSV: end in the middle of the last row, as a logger killed "
                                 "mid-write does.")] = False,
+    mag_rate: Annotated[float | None, typer.Option(
+        "--mag-rate", metavar="HZ", callback=positive, show_default=False,
+        help="Add a magnetometer (gauss, columns mx, my, mz of a CSV) at this rate, which "
+             "must divide the accelerometer's; hard and soft iron and its rotation to the "
+             "accelerometer drawn, the truth in the truth file.")] = None,
+    mag_field: Annotated[float, typer.Option(
+        "--mag-field", metavar="GAUSS", callback=positive,
+        help="The local field's norm.")] = 0.5,
+    mag_dip: Annotated[float, typer.Option(
+        "--mag-dip", metavar="DEG", help="The field's dip below the horizon.")] = 65.0,
+    mag_noise: Annotated[float, typer.Option(
+        "--mag-noise", metavar="GAUSS", callback=non_negative,
+        help="Magnetometer white noise per axis.")] = 0.002,
+    mag_disturbance: Annotated[tuple[float, float] | None, typer.Option(
+        "--mag-disturbance", metavar="T0 T1", show_default=False,
+        help="A magnet carried with the sensor from T0 to T1 s (0.3 of the field).")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
@@ -296,6 +326,16 @@ def synth(
                           "'--gyro-rate'")
     if poses is not None and minutes is not None:
         raise usage_error("give either --poses or --minutes, not both", "'--minutes'")
+    if mag_rate is not None and not csv:
+        raise usage_error("a magnetometer is written in a CSV's mx, my, mz columns: name "
+                          "OUT.csv", "'--mag-rate'")
+    if mag_rate is not None and abs(acc_rate / mag_rate - round(acc_rate / mag_rate)) > 1e-9:
+        raise usage_error("the magnetometer's rate must divide the accelerometer's (a CSV "
+                          "holds it on the accelerometer's rows)", "'--mag-rate'")
+    if mag_disturbance is not None and (mag_rate is None
+                                        or not 0 <= mag_disturbance[0] < mag_disturbance[1]):
+        raise usage_error("--mag-disturbance T0 T1 needs --mag-rate and 0 <= T0 < T1",
+                          "'--mag-disturbance'")
     if minutes is not None:
         # duration ~ init_still + n * still + (n - 1) * move (the durations vary by +-20 %)
         poses = max(2, round((minutes * 60.0 - init_still + move) / (still + move)))
@@ -312,16 +352,22 @@ def synth(
         sess, tr = make_session(poses=poses, seed=seed, still=still, move=move,
                                 init_still=init_still, acc_rate=acc_rate, gyro_rate=gyro_rate,
                                 acc_noise=acc_noise, gyro_noise=gyro_noise, gyro_drift=drift,
-                                change_at=change_at, acc_unit=acc_unit, gyro_unit=gyro_unit)
+                                change_at=change_at, acc_unit=acc_unit, gyro_unit=gyro_unit,
+                                mag_rate=mag_rate, mag_field=mag_field, mag_dip_deg=mag_dip,
+                                mag_noise=mag_noise, mag_disturbance=mag_disturbance)
     with progress.stage(f"writing {out}"):
         if csv:
             stated = {"sample_rate_hz": acc_rate, "init_still_s": init_still}
             write_session_csv(out, sess, gyro_unit=gyro_unit,
-                              preamble=stated if preamble else None, cut_last_line=cut_last_line)
+                              preamble=stated if preamble else None, cut_last_line=cut_last_line,
+                              mag=mag_rate is not None)
         else:
             write_session_mat(out, sess, gyro_unit=gyro_unit)
         write_truth(truth, tr)
     change = "" if tr.t_change is None else f", parameters change at {tr.t_change:.1f} s"
+    if tr.mag is not None:
+        change += (f", magnetometer {len(sess.others[0].t)} samples at "
+                   f"{fmt_rate(mag_rate)} (gauss)")
     print(f"session         {poses} poses, {sess.duration:.1f} s, accelerometer "
           f"{len(sess.acc)} samples at {fmt_rate(sess.acc_rate)} ({acc_unit}), gyroscope "
           f"{len(sess.gyro)} samples at {fmt_rate(sess.gyro_rate)} ({gyro_unit}){change}\n"

@@ -146,7 +146,48 @@ def result_to_dict(result: Result) -> dict:
         "guide": None if result.guide is None else result.guide.to_dict(),
         # The run judged (imucal.stages.verdict): level, the one reason, the next step.
         "verdict": None if result.verdict is None else result.verdict.to_dict(),
-    }
+    } | _magnetometer_keys(result)
+
+
+MAG_MODEL = ("m = R_am M (m_raw - b) (imucal M6): b the hard iron and M the soft iron (symmetric, "
+             "det M = 1) in the raw unit, so |m| = field in the raw unit; R_am the rotation from "
+             "the magnetometer's corrected frame to the accelerometer's calibrated frame (M2's); "
+             "u . m / field = -sin(dip) for the calibrated accelerometer's up u when still. "
+             "std.R_am_deg: small rotations about the accelerometer's x, y, z axes. Fitted over "
+             "the whole session.")
+
+
+def _magnetometer_keys(result: Result) -> dict:
+    """The ``magnetometer`` section, only for a session holding one (a session without keeps
+    its calibration file byte for byte)."""
+    stream = next((x for x in result.session.others if x.kind == "mag"), None)
+    if stream is None:
+        return {}
+    fit = result.magnetometer
+    if fit is None:
+        said = [w for w in result.warnings if w.code in ("mag_not_calibrated", "mag_disturbed")]
+        return {"magnetometer": {"model": MAG_MODEL, "stream": stream.name, "unit": stream.unit,
+                                 "calibrated": False,
+                                 "reasons": [w.message for w in said]}}
+    q = fit.quality
+    return {"magnetometer": {
+        "model": MAG_MODEL, "stream": fit.stream, "unit": fit.unit, "calibrated": True,
+        "M": _fl(fit.M), "b": _fl(fit.b),
+        "R_am": None if fit.R_am is None else _fl(fit.R_am),
+        "field": _f(fit.field), "dip_deg": _f(fit.dip_deg),
+        "std": {"M": _fl(fit.std_M), "b": _fl(fit.std_b), "field": _f(fit.std_field),
+                "dip_deg": _f(fit.std_dip_deg),
+                "R_am_deg": None if fit.std_R_am_deg is None else _fl(fit.std_R_am_deg)},
+        "quality": {"norm_rms_pct": {"in_sample": _f(q.norm_rms_pct),
+                                     "held_out": _f(q.norm_rms_held_out_pct),
+                                     "note": "|m| / field - 1; held out: each half of the "
+                                             "recording's time judged by the other's fit"},
+                    "dip_spread_deg": _f(q.dip_spread_deg), "coverage": _f(q.coverage),
+                    "missing": q.missing, "still_blocks": q.blocks,
+                    "heading_std_deg": _f(q.heading_std_deg)},
+        "samples": fit.samples, "samples_used": int(fit.used.sum()), "start": fit.start,
+        "soft_iron_estimated": fit.soft_iron,
+        "disturbances": [d.to_dict() for d in fit.disturbances]}}
 
 
 def _gyro_cv_keys(fit: GyroFit) -> dict:

@@ -50,11 +50,13 @@ def write_session_mat(path: str | os.PathLike, session: Session, gyro_unit: str 
 
 def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str | None = None,
                       *, preamble: dict[str, float] | None = None,
-                      cut_last_line: bool = False) -> None:
+                      cut_last_line: bool = False, mag: bool = False) -> None:
     """A session as one CSV table, as a logger writes it: ``t,ax,ay,az,gx,gy,gz``; with a
     ``preamble`` of ``key,value`` lines above the header and no time column instead (the rate
     is in the preamble); ``cut_last_line`` ends the file in the middle of its last row, as a
-    logger killed mid-write leaves it. Numbers are written to round-trip exactly."""
+    logger killed mid-write leaves it; ``mag``: the session's first magnetometer in columns
+    ``mx,my,mz`` on the rows of its timestamps (each one an accelerometer timestamp), empty
+    on the others. Numbers are written to round-trip exactly."""
     if not session.has_gyro or not np.array_equal(session.t_acc, session.t_gyro):
         raise ValueError("a CSV session needs the gyroscope at the accelerometer's timestamps")
     gyro = session.gyro
@@ -62,6 +64,17 @@ def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str 
         gyro = np.rad2deg(gyro)
     columns = [session.acc, gyro]
     names = ["ax", "ay", "az", "gx", "gy", "gz"]
+    if mag:
+        stream = next(s for s in session.others if s.kind == "mag")
+        rows = np.searchsorted(session.t_acc, stream.t)
+        rows = np.minimum(rows, len(session.t_acc) - 1)
+        if not np.allclose(session.t_acc[rows], stream.t, rtol=0, atol=1e-9):
+            raise ValueError("a CSV holds the magnetometer on the accelerometer's rows: its "
+                             "rate must divide the accelerometer's")
+        m = np.full((len(session.t_acc), 3), np.nan)
+        m[rows] = stream.values
+        columns.append(m)
+        names += ["mx", "my", "mz"]
     head = ""
     if preamble is None:
         columns.insert(0, session.t_acc[:, None])
@@ -70,7 +83,7 @@ def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str 
         head = "".join(f"{key},{value:g}\n" for key, value in preamble.items())
     buf = io.StringIO()
     np.savetxt(buf, np.hstack(columns), fmt="%.17g", delimiter=",")
-    text = head + ",".join(names) + "\n" + buf.getvalue()
+    text = head + ",".join(names) + "\n" + buf.getvalue().replace("nan", "")
     if cut_last_line:
         last = text.rindex("\n", 0, len(text) - 1) + 1
         text = text[: last + (len(text) - last) // 2]  # half a row, no newline after it
@@ -87,6 +100,9 @@ def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
     Tables hold one row per accelerometer sample (``t, ax, ay, az``) and, when the gyroscope
     runs at the same timestamps, ``gx, gy, gz`` beside them; otherwise the gyroscope goes in
     a second table (``NAME.gyro.EXT``) for CSV/Parquet, or in ``gyro``/``t_gyro`` in .mat.
+    A calibrated magnetometer: ``mag``/``t_mag`` in .mat; in a table ``mx, my, mz`` on the
+    accelerometer's rows of its timestamps, empty on the others (a table's magnetometer is
+    read so), and left out of a table when its clock is its own (:func:`mag_rows`).
     """
     fmt = output_format(path)
     if fmt == "mat":
@@ -95,6 +111,8 @@ def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
         data = {"acc": cal.acc, "t_acc": cal.t_acc}
         if cal.gyro is not None:
             data |= {"gyro": cal.gyro, "t_gyro": cal.t_gyro}
+        if cal.mag is not None:
+            data |= {"mag": cal.mag, "t_mag": cal.t_mag}
 
         def _w(tmp: Path) -> None:
             with open(tmp, "wb") as f:
@@ -108,12 +126,30 @@ def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
     shared = cal.gyro is not None and np.array_equal(cal.t_acc, cal.t_gyro)
     if shared:
         cols |= {"gx": cal.gyro[:, 0], "gy": cal.gyro[:, 1], "gz": cal.gyro[:, 2]}
-    _write_table(path, pl.DataFrame(cols), fmt)
+    rows = mag_rows(cal)
+    if rows is not None:
+        m = np.full((len(cal.t_acc), 3), np.nan)
+        m[rows] = cal.mag
+        cols |= {"mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2]}
+    df = pl.DataFrame(cols)
+    if rows is not None:
+        df = df.with_columns(pl.col("mx", "my", "mz").fill_nan(None))  # empty cells
+    _write_table(path, df, fmt)
     if cal.gyro is not None and not shared:
         p = Path(path)
         gpath = p.with_name(p.stem + ".gyro" + p.suffix)
         _write_table(gpath, pl.DataFrame({"t": cal.t_gyro, "gx": cal.gyro[:, 0],
                                           "gy": cal.gyro[:, 1], "gz": cal.gyro[:, 2]}), fmt)
+
+
+def mag_rows(cal: CalibratedSignals):
+    """The accelerometer's rows of the calibrated magnetometer's timestamps, when every one is
+    an accelerometer timestamp (a table's magnetometer); None without one or on its own
+    clock."""
+    if cal.mag is None or len(cal.t_mag) == 0:
+        return None
+    rows = np.minimum(np.searchsorted(cal.t_acc, cal.t_mag), len(cal.t_acc) - 1)
+    return rows if np.array_equal(cal.t_acc[rows], cal.t_mag) else None
 
 
 def _write_table(path: str | os.PathLike, df, fmt: str) -> None:

@@ -30,7 +30,7 @@ from imucal.io.logs import check_select, choose_streams, log_format
 from imucal.io.mat_layout import from_variables
 from imucal.io.parts import LoadOptions, Part
 from imucal.io.readers import display_name, read_file
-from imucal.io.select import describe, parts_of
+from imucal.io.select import describe, find, parts_of
 from imucal.io.spill import Spill, SpillPolicy, contiguous, elementwise
 from imucal.io.table_layout import from_names, from_positions
 from imucal.io.time_base import MAX_RATE_HZ, own_rows, settle_time
@@ -46,7 +46,7 @@ from imucal.io.units import (
 )
 from imucal.session import Session
 from imucal.stages.sanity import one_rate_pairing
-from imucal.streams import UNITS, Stream
+from imucal.streams import UNITS, Stream, StreamSet
 
 __all__ = ["load_session"]
 
@@ -153,8 +153,19 @@ def load_session(
         storage=store.note(),
         chosen=() if chosen is None else tuple(
             describe(x) for x in (chosen.acc, chosen.gyro) if x is not None),
-        others=extras if chosen is None else chosen.others,
+        others=_named_mag_first(extras if chosen is None else chosen.others,
+                                select.get("mag"), source),
     )
+
+
+def _named_mag_first(others: tuple[Stream, ...], selector: str | None, source: str
+                     ) -> tuple[Stream, ...]:
+    """The other streams with the magnetometer ``--mag`` names first: the pipeline calibrates
+    the first magnetometer of a session (stages/mag.py)."""
+    if selector is None:
+        return others
+    named = find(StreamSet(source, "", others), "mag", selector)
+    return (named, *(s for s in others if s is not named))
 
 
 def _extra_streams(opts: LoadOptions) -> list[Stream]:
@@ -182,8 +193,10 @@ def _extra_streams(opts: LoadOptions) -> list[Stream]:
         out.append(Stream(kind, part.sensor, np.ascontiguousarray(t, dtype=float),
                           np.ascontiguousarray(values, dtype=float), unit,
                           f"{part.source}: columns {roles}", time_source="the table's time"))
-        opts.notes.append(f"{label} found beside the pair ({roles}: {len(t)} samples); "
-                          "recorded, not calibrated")
+        # a magnetometer is calibrated over the whole session (stages/mag.py), the rest kept
+        what = ("calibrated on its own (the magnetometer's section)" if kind == "mag"
+                else "recorded, not calibrated")
+        opts.notes.append(f"{label} found beside the pair ({roles}: {len(t)} samples); {what}")
     return out
 
 

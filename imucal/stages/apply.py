@@ -20,6 +20,20 @@ from imucal.session import Session
 
 
 @dataclass(frozen=True)
+class MagModel:
+    """The magnetometer's M6 (stages/mag.py) as applying it needs: ``m = R_am M (m_raw - b)``
+    in the raw unit ``unit`` (None: unstated), over the whole session."""
+
+    M: np.ndarray
+    b: np.ndarray
+    R_am: np.ndarray  # the identity where the rotation was not estimated
+    unit: str | None = None
+
+    def apply(self, raw: np.ndarray) -> np.ndarray:
+        return (np.asarray(raw, float) - self.b) @ (self.R_am @ self.M).T
+
+
+@dataclass(frozen=True)
 class SegmentModels:
     t_start: float
     t_end: float
@@ -34,6 +48,7 @@ class Calibration:
     acc_unit: str  # unit of the calibrated accelerometer ("g" or "m/s^2")
     g: float  # |g| in acc_unit
     gyro_unit_raw: str | None  # "rad/s" or "counts" (deg/s input is converted on load)
+    mag: MagModel | None = None  # the magnetometer, when the calibration has one
 
     def check_units(self, session: Session) -> None:
         """Refuse a session in other units than the calibration was fitted on (style.md)."""
@@ -57,7 +72,9 @@ class Calibration:
                           "accelerometer": model_dict(seg.acc),
                           "gyroscope": None if seg.gyro is None else model_dict(seg.gyro)}
                          for seg in self.segments],
-        }
+        } | ({} if self.mag is None else {"magnetometer": {
+            "calibrated": True, "unit": self.mag.unit, "M": self.mag.M.tolist(),
+            "b": self.mag.b.tolist(), "R_am": self.mag.R_am.tolist()}})
 
     @classmethod
     def from_dict(cls, data: dict) -> Calibration:
@@ -91,11 +108,13 @@ class Calibration:
             if not segments:
                 field = "segments"
                 raise ValueError("no segments")
+            field = "magnetometer"
+            mag = _mag_model(data.get("magnetometer"))
         except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
             what = f"missing {e}" if isinstance(e, KeyError) else str(e)
             raise ImucalError(f"malformed calibration: {what}", field=field) from None
         return cls(segments=tuple(segments), acc_unit_raw=raw, acc_unit=out, g=g,
-                   gyro_unit_raw=gyro_raw)
+                   gyro_unit_raw=gyro_raw, mag=mag)
 
     def apply(self, session: Session) -> CalibratedSignals:
         self.check_units(session)
@@ -103,8 +122,16 @@ class Calibration:
         gyro = None
         if self.applies_gyro(session):
             gyro = _apply_piecewise(session.gyro, session.t_gyro, self.segments, "gyro")
+        t_mag = mag = None
+        stream = next((x for x in session.others if x.kind == "mag"), None)
+        if self.mag is not None and stream is not None:
+            if None not in (self.mag.unit, stream.unit) and self.mag.unit != stream.unit:
+                raise ImucalError(f"the calibration's magnetometer was fitted in "
+                                  f"{self.mag.unit}, this session's is in {stream.unit}",
+                                  source=session.source, field="magnetometer unit")
+            t_mag, mag = stream.t, self.mag.apply(stream.values)
         return CalibratedSignals(t_acc=session.t_acc, acc=acc, t_gyro=session.t_gyro,
-                                 gyro=gyro, acc_unit=self.acc_unit)
+                                 gyro=gyro, acc_unit=self.acc_unit, t_mag=t_mag, mag=mag)
 
     def applies_gyro(self, session: Session) -> bool:
         """Does :meth:`apply` calibrate this session's gyroscope (a model in every segment)?"""
@@ -129,6 +156,8 @@ class CalibratedSignals:
     t_gyro: np.ndarray | None
     gyro: np.ndarray | None  # rad/s
     acc_unit: str
+    t_mag: np.ndarray | None = None  # the magnetometer's own clock, s
+    mag: np.ndarray | None = None  # M6 applied: the raw unit, the accelerometer's frame
 
     @property
     def acc_norm(self) -> np.ndarray:
@@ -230,6 +259,34 @@ def _unit(units: dict, key: str, known: tuple[str, ...], optional: bool = False)
     if (value is None and optional) or value in known:
         return value
     raise ValueError(f"{key} {value!r} is not one of {', '.join(known)}")
+
+
+def _mag_model(d: Any) -> MagModel | None:
+    """The magnetometer section's M, b, R_am (M6), or None where the file has none or says
+    it was not calibrated; refused unless M is finite and invertible, b finite and R_am a
+    rotation (or null: none estimated)."""
+    if d is None or (isinstance(d, dict) and d.get("calibrated") is False):
+        return None
+    arrays = {}
+    for key, shape in (("M", (3, 3)), ("b", (3,)), ("R_am", (3, 3))):
+        raw = d[key]
+        if key == "R_am" and raw is None:
+            arrays[key] = np.eye(3)
+            continue
+        if _has_bool(raw):
+            raise ValueError(f"{key} must hold numbers, not true/false")
+        a = np.array(raw, dtype=float)
+        if a.shape != shape or not np.all(np.isfinite(a)):
+            raise ValueError(f"{key} must be {'3x3' if len(shape) == 2 else '3'} finite numbers")
+        arrays[key] = a
+    if abs(np.linalg.det(arrays["M"])) < 1e-12 * np.abs(arrays["M"]).max() ** 3:
+        raise ValueError("M is singular")
+    R = arrays["R_am"]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise ValueError("R_am must be a rotation")
+    unit = d.get("unit")
+    return MagModel(M=arrays["M"], b=arrays["b"], R_am=R,
+                    unit=unit if isinstance(unit, str) else None)
 
 
 def _number(x: Any, what: str) -> float:
