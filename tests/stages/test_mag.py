@@ -184,7 +184,7 @@ def test_synth_writes_a_magnetometer_that_calibrate_fits_and_writes_for_a_script
     assert main(["synth", str(out), "--poses", "20", "--seed", "3", "--acc-rate", "50",
                  "--still", "2", "--move", "1.5", "--mag-rate", "25", "--mag-dip", "50",
                  "--mag-disturbance", "30", "40"]) == 0
-    truth = json.loads((tmp_path / "s.truth.json").read_text())["magnetometer"]
+    truth = json.loads((tmp_path / "s.csv.truth.json").read_text())["magnetometer"]
     assert truth["dip_deg"] == 50 and truth["disturbance"] == [30, 40]
     assert main(["calibrate", str(out), "--out", str(cal)]) == 0
     sec = json.loads(cal.read_text())["magnetometer"]
