@@ -93,8 +93,15 @@ class Motion:
 
 
 def make_motion(rng: np.random.Generator, poses: int, still: float, move: float,
-                init_still: float) -> Motion:
-    q = quat.random_unit(poses, rng)
+                init_still: float, coplanar: bool = False) -> Motion:
+    if coplanar:
+        # Every turn about the body's x axis, by 30-120 deg either way: gravity (body frame)
+        # stays in the y-z plane, a session that leaves directions unmeasured (issue 27).
+        step = rng.uniform(np.radians(30), np.radians(120), poses) * rng.choice([-1, 1], poses)
+        roll = np.cumsum(step) - step[0]
+        q = quat.from_rotvec(np.outer(roll, [1.0, 0.0, 0.0]))
+    else:
+        q = quat.random_unit(poses, rng)
     rel = quat.multiply(quat.conjugate(q[:-1]), q[1:])  # q_k = q_(k-1) (x) rel: body-frame turn
     rv = quat.to_rotvec(rel)
     angle = np.linalg.norm(rv, axis=1)
@@ -126,6 +133,7 @@ def make_session(
     counts_per_g: float = 4096.0,
     gyro_unit: str = "rad/s",
     counts_per_rad_s: float = 939.65,
+    coplanar: bool = False,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -139,9 +147,11 @@ def make_session(
     ``acc_unit`` "g", "m/s^2" or "counts"; ``gyro_unit`` "rad/s", "deg/s" or "counts". A
     session holds rad/s or counts (:class:`~imucal.session.Session`), so "deg/s" gives rad/s
     here: write it with ``write_session_mat(..., gyro_unit="deg/s")`` for a file in deg/s.
+    ``coplanar`` turns the device about its x axis only: every pose's gravity lies in one
+    plane, so the data cannot determine every parameter (an ill-posed session).
     """
     rng = np.random.default_rng(seed)
-    motion = make_motion(rng, poses, still, move, init_still)
+    motion = make_motion(rng, poses, still, move, init_still, coplanar)
     duration = float(motion.still[-1, 1])
     gyro_rate = gyro_rate or acc_rate
     t_a = np.arange(int(duration * acc_rate)) / acc_rate

@@ -21,6 +21,12 @@ not seen; in-sample figures flatter a fit with few poses (the Ferraris session o
   shows on the shared recordings (1.5-3.7 deg); calibrated, 0.05-0.53 deg held out.
 - overfitting: held out much worse than in-sample (:attr:`AccCrossValidation.overfitted`, and
   :data:`imucal.stages.gyro.OVERFIT_RATIO` for the turns), the same tests as the warnings.
+- parameters the data do not determine (issue 27): a held-out figure is no verdict on a
+  direction no pose or turn measured, since leaving one block out cannot show what no block
+  saw (a coplanar session: 0.56 mg held out, 22 mg RMS in truth). A parameter whose data-only
+  standard error would let a pose or a turn along its direction pass the not-usable limit
+  (:data:`imucal.stages.accel.UNDETERMINED_STD`, :data:`imucal.stages.gyro.UNDETERMINED_TURN_DEG`)
+  makes the run not usable, whatever the figures: the prior held it, nothing measured it.
 """
 
 from __future__ import annotations
@@ -222,10 +228,12 @@ def _accelerometer(seg: SegmentFigures, guide: Guide | None,
     elif cv.overfitted:
         out.append(Finding("acc_overfitted", CAVEATS, where + said, poses))
     if cv.undetermined:
-        out.append(Finding("acc_undetermined", CAVEATS,
+        out.append(Finding("acc_undetermined", NOT_USABLE,
                            f"{where}the still poses do not determine "
                            f"{', '.join(cv.undetermined)}: kept near the nominal value, "
-                           "not measured", poses))
+                           "not measured; a pose along the directions they govern may be off "
+                           f"by more than {ACC_POOR_MG:g} mg, which the figures cannot show "
+                           "(no pose measured them)", poses))
     if seg.orientations < ORIENTATIONS_NEEDED:
         out.append(Finding("few_orientations", CAVEATS,
                            f"{where}{seg.orientations} distinct orientations: "
@@ -245,19 +253,25 @@ def _gyroscope(seg: SegmentFigures, guide: Guide | None,
     figures[_key(seg, "gravity_held_out_deg")] = held
     figures[_key(seg, "gravity_in_sample_deg")] = ins
     where, turns = _where(seg), _turns_next(guide)
+    weak = [] if not g.undetermined else [Finding(
+        "gyro_undetermined", NOT_USABLE,
+        f"{where}the turns do not determine the gyroscope's {', '.join(g.undetermined)}: kept "
+        "near the nominal value, not measured; a turn about the axes they govern may end more "
+        f"than {GYRO_POOR_DEG:g} deg off, which the figures cannot show (no turn measured them)",
+        "record turns about every axis: tip the device forward, sideways and around")]
     if not np.isfinite(held):
         return [Finding("gyro_unchecked", CAVEATS, f"{where}the gyroscope fit could not be "
-                        "checked on turns it did not see (too few turns)", turns)]
+                        "checked on turns it did not see (too few turns)", turns), *weak]
     overfitted = ins > 0 and held > GYRO_OVERFIT_RATIO * ins
     said = (f"{'overfitted: ' if overfitted else ''}turns the gyroscope fit did not see end "
             f"{held:.2g} deg off the measured gravity, against {ins:.2g} deg for those it saw")
     if held > GYRO_POOR_DEG:
-        return [Finding("gyro_held_out", NOT_USABLE, where + said, turns)]
+        return [Finding("gyro_held_out", NOT_USABLE, where + said, turns), *weak]
     if held > GYRO_CAVEAT_DEG:
-        return [Finding("gyro_held_out", CAVEATS, where + said, turns)]
+        return [Finding("gyro_held_out", CAVEATS, where + said, turns), *weak]
     if overfitted:
-        return [Finding("gyro_overfitted", CAVEATS, where + said, turns)]
-    return []
+        return [Finding("gyro_overfitted", CAVEATS, where + said, turns), *weak]
+    return weak
 
 
 def _recording(guide: Guide) -> list[Finding]:
