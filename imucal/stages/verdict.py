@@ -141,17 +141,26 @@ def judge(segments: Sequence[SegmentFigures], guide: Guide | None) -> Verdict:
 def with_spec(verdict: Verdict, check: dict, source: str) -> Verdict:
     """The verdict with a maker's limits applied (``check`` as :mod:`imucal.fleet.spec` gives
     it: ``pass``, ``broken``, ``unchecked``, and the ``limits``): a unit out of its limits is
-    not usable whatever the calibration's quality. The limit it breaks is the reason; the
-    calibration's own verdict becomes the first of the others."""
+    not usable whatever the calibration's quality, and so is one the limits could not judge
+    (a spec passes only what it judged). The limit it breaks (else the first it could not
+    judge) is the reason; the calibration's own verdict becomes the first of the others."""
     verdict = replace(verdict, spec=dict(check) | {"file": source})
     broken = list(check.get("broken") or [])
-    if not broken:
+    unchecked = list(check.get("unchecked") or [])
+    if not broken and not unchecked:
         return verdict
-    more = f" (and {len(broken) - 1} more)" if len(broken) > 1 else ""
     own = Finding(verdict.code, verdict.level, verdict.reason, verdict.next_step)
-    return replace(verdict, level=NOT_USABLE, code="out_of_spec",
-                   reason=f"out of the limits of {source}: {broken[0]}{more}",
-                   next_step="set the unit aside, or widen the limits if they are wrong",
+    if broken:
+        more = f" (and {len(broken) - 1} more)" if len(broken) > 1 else ""
+        return replace(verdict, level=NOT_USABLE, code="out_of_spec",
+                       reason=f"out of the limits of {source}: {broken[0]}{more}",
+                       next_step="set the unit aside, or widen the limits if they are wrong",
+                       caveats=(own, *verdict.caveats))
+    return replace(verdict, level=NOT_USABLE, code="spec_unchecked",
+                   reason=(f"the limits of {source} could not be judged on this session: "
+                           f"{', '.join(unchecked)} (no figure to compare)"),
+                   next_step=("remove the limits this session cannot be judged on, or record "
+                              "what they need (the unit's nominal scale, a gyroscope)"),
                    caveats=(own, *verdict.caveats))
 
 
