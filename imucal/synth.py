@@ -134,6 +134,7 @@ def make_session(
     gyro_unit: str = "rad/s",
     counts_per_rad_s: float = 939.65,
     coplanar: bool = False,
+    acc_drift: float = 0.0,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -147,6 +148,8 @@ def make_session(
     ``acc_unit`` "g", "m/s^2" or "counts"; ``gyro_unit`` "rad/s", "deg/s" or "counts". A
     session holds rad/s or counts (:class:`~imucal.session.Session`), so "deg/s" gives rad/s
     here: write it with ``write_session_mat(..., gyro_unit="deg/s")`` for a file in deg/s.
+    ``acc_drift`` is the total change of the accelerometer bias over the session, g, linear
+    in time along a random direction (drawn apart: the rest of the session is the same).
     ``coplanar`` turns the device about its x axis only: every pose's gravity lies in one
     plane, so the data cannot determine every parameter (an ill-posed session).
     """
@@ -180,6 +183,9 @@ def make_session(
 
     raw_a = _distort(ideal_a, t_a, acc_truth, acc2, t_change)
     raw_a += rng.normal(0, acc_noise, raw_a.shape)
+    if acc_drift:
+        way = np.random.default_rng([seed, 2]).normal(0, 1, 3)
+        raw_a += np.outer(t_a / max(duration, 1e-9), acc_drift * way / np.linalg.norm(way))
     raw_g = _distort(w, t_g, gyro_truth, gyro2, t_change) + drift * t_g[:, None]
     raw_g += rng.normal(0, gyro_noise, raw_g.shape)
 

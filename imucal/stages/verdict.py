@@ -40,6 +40,7 @@ from imucal.stages.accel_cv import AccCrossValidation, axis_words
 from imucal.stages.guide import MIN_TILT_DEG, ORIENTATIONS_NEEDED, Guide
 from imucal.stages.gyro import OVERFIT_RATIO as GYRO_OVERFIT_RATIO
 from imucal.stages.gyro import GyroFit
+from imucal.warning import RunWarning
 
 GOOD = "good"
 CAVEATS = "usable with caveats"
@@ -119,15 +120,22 @@ class SegmentFigures:
     orientations: int
 
 
-def judge(segments: Sequence[SegmentFigures], guide: Guide | None) -> Verdict:
+def judge(segments: Sequence[SegmentFigures], guide: Guide | None,
+          drifts: Sequence[RunWarning] = ()) -> Verdict:
     """The verdict of a run: every finding, the worst decides (ties: the first found, in the
-    order accelerometer held out, gyroscope held out, undetermined parameters, poses, turns)."""
+    order accelerometer held out, gyroscope held out, undetermined parameters, poses, drifts,
+    turns). ``drifts`` are the warnings of a bias that moved within a segment
+    (:mod:`imucal.stages.drift`): caveats, since one calibration was fitted to a sensor that
+    changed, and the held-out figures average over the change instead of showing it."""
     findings: list[Finding] = []
     figures: dict[str, float | None] = {}
     for seg in segments:
         findings += _accelerometer(seg, guide, figures)
         if seg.gyro is not None:
             findings += _gyroscope(seg, guide, figures)
+    findings += [Finding(w.code, CAVEATS, w.text.split("; one calibration")[0],
+                         "let the sensor warm up (run it 10-15 minutes) before recording, "
+                         "and keep the session short") for w in drifts]
     if guide is not None:
         findings += _recording(guide)
     if not findings:
