@@ -34,12 +34,13 @@ from imucal.warning import RunWarning
 
 TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
 EXCESS_ROUNDS = 3  # renewals of the ML weights with the excess variance tau^2
-# A parameter the data alone pin no better than this (nominal frame: 1 = |g| for a scale or a
-# bias, 1 rad for a misalignment, each moving the calibrated output by about its own size in
-# units of |g|) is undetermined (issue 27): a pose along the direction it governs could be off
-# by more than the verdict's not-usable limit, 10 mg (imucal.stages.verdict.ACC_POOR_MG), one
-# standard error away. Measured: 6e-5 to 1.8e-4 on well-posed synthetic sessions and the
-# sample; 0.03 to 2e4 for the parameters a coplanar session leaves open.
+# A parameter the data alone (method.md M6) pin no better than this (nominal frame: 1 = |g|
+# for a scale or a bias, 1 rad for a misalignment, each moving the calibrated output by about
+# its own size in units of |g|) is undetermined (issue 27): a pose along the direction it
+# governs could be off by more than the verdict's not-usable limit, 10 mg
+# (imucal.stages.verdict.ACC_POOR_MG), one standard error away. Measured: 6e-5 to 1.8e-4 on
+# well-posed synthetic sessions and the sample; 0.03 to 2e4 for the parameters a coplanar
+# session leaves open.
 UNDETERMINED_STD = 0.01
 
 

@@ -9,7 +9,7 @@ the ramp answers, by an F-test of nested linear models:
 - accelerometer: the M3 residuals of the block means (weighted as the grouping weighs them,
   :func:`imucal.stages.group.block_weights`), linearised at the segment's fit, against the
   same with a bias that changes linearly in time, ``b(t) = b + c (t - t_mid) / T`` (3 more
-  parameters, ``c`` the change over the segment's span ``T``);       (M6)
+  parameters, ``c`` the change over the segment's span ``T``; method.md M7);
 - gyroscope: each still block's mean rate (the bias, method.md §4), weighted by the inverse
   variance of the mean from its own scatter, against a line in time per axis.
 
@@ -94,7 +94,7 @@ def _tau(t_mid: np.ndarray) -> np.ndarray:
 
 def accelerometer_drift(acc: np.ndarray, blocks: np.ndarray, means: np.ndarray,
                         t_mid: np.ndarray, fit: AccFit) -> DriftTest | None:
-    """M6 for one segment's accelerometer: ``blocks`` (B, 2) its still blocks (sample
+    """M7 for one segment's accelerometer: ``blocks`` (B, 2) its still blocks (sample
     ranges), ``means`` (B, 3) their raw means, ``t_mid`` (B,) their mid times, ``fit`` its
     calibration. None with fewer than 13 blocks (no degree of freedom left for the
     12-parameter model)."""

@@ -21,7 +21,7 @@ from imucal.io.export import write_session_mat
 from imucal.models import acc_theta, gyro_theta
 from imucal.synth import make_session, random_acc_model, random_gyro_model
 
-# The error limits judge the held-out figures (issue 27): 12 poses leave 0.6-1.3 mg held out.
+# The error limits judge the held-out figures (issue 27): 12 poses leave 0.2-1.4 mg held out.
 SPEC = """acc_bias_mg = 40
 acc_scale_pct = 3
 acc_misalignment_mrad = 10
