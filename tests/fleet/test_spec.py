@@ -69,3 +69,19 @@ def test_what_cannot_be_judged_fails(good_row):
     assert judged.level == V.NOT_USABLE and judged.code == "spec_unchecked"
     assert "static_norm_error_mg, gravity_error_deg" in judged.reason
     assert judged.caveats[0].level == V.GOOD
+
+
+def test_the_batch_report_names_what_it_could_not_judge(capsys, tmp_path):
+    from imucal.cli.fleet import _print_report
+    from imucal.fleet.batch import BatchReport, Counts
+    from imucal.fleet.summary import empty_row
+
+    row = empty_row() | {"status": "ok", "device": "dev", "session": "s1", "path": "s1.mat",
+                         "verdict": V.NOT_USABLE, "verdict_reason": "r", "verdict_next": "n",
+                         "spec_pass": False, "spec_broken": [],
+                         "spec_unchecked": ["gravity_error_deg"]}
+    report = BatchReport([row], Counts(total=1, done=1), tmp_path / "summary.parquet", 1, "c")
+    assert _print_report(report, Spec({"gravity_error_deg": 0.5}, "lim.toml")) == 1
+    out = capsys.readouterr().out
+    assert "spec            lim.toml: 0 pass, 1 fail" in out
+    assert "  - dev/s1: gravity_error_deg: cannot be judged on this session" in out
