@@ -38,6 +38,9 @@ ACC_MIN_MG = 0.4
 # A gyroscope bias change that turns a 2-s turn by 0.1 deg (a good fit's held-out figure is
 # 0.1-0.5 deg): 0.05 deg/s.
 GYRO_MIN_DPS = 0.05
+# What a drift warning ends with (the verdict gives it as its next step instead)
+ADVICE = ("one calibration is fitted to a sensor that changed: let it warm up before recording, "
+          "or record a shorter session")
 
 
 @dataclass(frozen=True)
@@ -72,9 +75,7 @@ class DriftTest:
             f"{unit} from the first still pose to the last (a bias changing linearly in time "
             f"explains the {self.blocks} still blocks better than a steady one: F "
             f"{self.f:.3g}, p {self.p_value:.2g}; they scatter {self.noise_ratio:.3g} times "
-            "beyond their own noise about a steady bias); one calibration is fitted to a "
-            "sensor that changed: let it warm up before recording, or record a shorter "
-            "session"), segment)
+            f"beyond their own noise about a steady bias); {ADVICE}"), segment)
 
 
 def _f_test(rss1: float, rss2: float, dof2: int) -> tuple[float, float]:

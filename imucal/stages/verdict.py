@@ -37,6 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from imucal.stages.accel_cv import AccCrossValidation, axis_words
+from imucal.stages.drift import ADVICE as DRIFT_ADVICE
 from imucal.stages.guide import MIN_TILT_DEG, ORIENTATIONS_NEEDED, Guide
 from imucal.stages.gyro import OVERFIT_RATIO as GYRO_OVERFIT_RATIO
 from imucal.stages.gyro import GyroFit
@@ -133,7 +134,7 @@ def judge(segments: Sequence[SegmentFigures], guide: Guide | None,
         findings += _accelerometer(seg, guide, figures)
         if seg.gyro is not None:
             findings += _gyroscope(seg, guide, figures)
-    findings += [Finding(w.code, CAVEATS, w.text.split("; one calibration")[0],
+    findings += [Finding(w.code, CAVEATS, w.text.removesuffix(f"; {DRIFT_ADVICE}"),
                          "let the sensor warm up (run it 10-15 minutes) before recording, "
                          "and keep the session short") for w in drifts]
     if guide is not None:

@@ -39,6 +39,8 @@ def test_a_gyroscope_bias_drift_is_said_and_judged():
     assert 0.8 <= float(w.message.split("about ")[1].split(" deg/s")[0]) <= 1.2
     assert r.verdict.level == V.CAVEATS and r.verdict.code == "gyro_bias_drift"
     assert r.verdict.next_step.startswith("let the sensor warm up")
+    assert r.verdict.reason.startswith("the gyroscope's bias moved during the recording")
+    assert "warm up" not in r.verdict.reason  # the advice is the next step, said once
     assert _drift(r, "acc_bias_drift") is None
 
 
