@@ -39,14 +39,14 @@ def _data_cov(J: np.ndarray, s2: float, meat: np.ndarray | FactoredCov | None) -
     """``(J'J)^-1 J' (s2 I + meat) J (J'J)^-1`` through the SVD of ``J``: a direction of
     parameter space the data do not see (singular value 0) gets a variance past any limit."""
     U, sv, Vt = np.linalg.svd(J, full_matrices=False)
+    if sv.size == 0 or not sv[0] > 0:  # no data at all (every turn left out), or none that moves
+        return np.full((J.shape[1], J.shape[1]), np.inf)
     if meat is None:
         mid = s2 * np.eye(len(sv))
     elif isinstance(meat, FactoredCov):
         mid = s2 * np.eye(len(sv)) + meat.quad(U)
     else:
         mid = s2 * np.eye(len(sv)) + U.T @ np.asarray(meat) @ U
-    if not sv[0] > 0:
-        return np.full((J.shape[1], J.shape[1]), np.inf)
     # A direction the data do not see at all (rounding's singular value) gets the variance of
     # one seen 1e14 times more weakly than the best: finite arithmetic, and far past any limit.
     A = Vt.T / np.maximum(sv, sv[0] * 1e-14)  # V S^-1

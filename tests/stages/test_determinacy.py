@@ -95,5 +95,8 @@ def test_determinacy_is_the_unregularised_covariance():
     assert np.all(np.isfinite(d2.std[[0, 2]]))
     J3 = np.column_stack([J[:, 0], J[:, 0] * 2, J[:, 2]])  # only a + 2b is measured
     assert determinacy(J3, s2, ("a", "b", "c"), 1.0).undetermined == ("a", "b")
+    # No data at all (every turn left out of a gyroscope fit): nothing is determined.
+    assert determinacy(np.zeros((0, 3)), s2, ("a", "b", "c"), 1.0).undetermined == ("a", "b",
+                                                                                     "c")
     # The limit decides: the same data, a limit below the errors, everything undetermined.
     assert determinacy(J, s2, ("a", "b", "c"), 1e-6).undetermined == ("a", "b", "c")
