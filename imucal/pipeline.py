@@ -24,6 +24,7 @@ from imucal.stages.apply import Calibration, MagModel, SegmentModels
 from imucal.stages.detect import Detection
 from imucal.stages.detect_score import count_orientations
 from imucal.stages.detect_tuning import tune_detector
+from imucal.stages.drift import accelerometer_drift, gyroscope_drift
 from imucal.stages.group import block_mean_variance, group_blocks
 from imucal.stages.guide import ADVISED_HOLD_S, recording_guide
 from imucal.stages.gyro import calibrate_gyroscope
@@ -108,11 +109,14 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
 
     several = len(grouping.segments) > 1
     segments = []
+    drifts: list[RunWarning] = []
     for i, (b0, b1) in enumerate(grouping.segments):  # §3 and §4 on each segment
         seg = _segment(session, settings, still, whole, i, b0, b1, g_in, g_out, several)
         segments.append(seg)
         # A warning names its segment only when there are several: one segment is the session.
         warnings += _segment_warnings(seg, seg.number if several else None)
+        drifts += _drift_warnings(session, still, seg, seg.number if several else None)
+    warnings += drifts
 
     calibration = Calibration(
         segments=tuple(SegmentModels(t_start=s.t_start, t_end=s.t_end, acc=s.acc.model,
@@ -134,7 +138,7 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                             [(s.blocks[0], s.gyro) for s in segments if s.gyro is not None],
                             gyro_rows)
     verdict = judge([SegmentFigures(s.number if several else None, s.acc_cv, s.gyro,
-                                    s.orientations) for s in segments], guide)
+                                    s.orientations) for s in segments], guide, drifts)
     # the segments' blocks, in the order of ``up`` (the segments cover the blocks in order)
     seg_times = np.concatenate([block_times[s.blocks[0]:s.blocks[1]] for s in segments])
     magnetometer = _magnetometer(session, seg_times, up, warnings)
@@ -151,7 +155,7 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
 def _magnetometer(session: Session, block_times: np.ndarray, up: np.ndarray,
                   warnings: list[RunWarning]) -> MagFit | None:
     """The session's magnetometer (its first "mag" stream: the one ``--mag`` names is put
-    first on load) calibrated over the whole session (M6, stages/mag.py), with the still
+    first on load) calibrated over the whole session (M8, stages/mag.py), with the still
     blocks' calibrated gravity for its rotation to the accelerometer; what it found said in
     ``warnings``. None without a magnetometer, or when it cannot be calibrated (said)."""
     stream = next((s for s in session.others if s.kind == "mag"), None)
@@ -256,6 +260,19 @@ def _segment_warnings(seg: Segment, where: int | None) -> list[RunWarning]:
             "more determine the accelerometer's 9 parameters (with fewer, some are kept near "
             "their nominal values, not measured)", where))
     return out
+
+
+def _drift_warnings(session: Session, still: StillBlocks, seg: Segment, where: int | None
+                    ) -> list[RunWarning]:
+    """A bias that moved within the segment (M7, stages/drift.py), said where it did."""
+    b0, b1 = seg.blocks
+    t_mid = still.block_times[b0:b1].mean(axis=1)
+    tests = [accelerometer_drift(session.acc, still.det.blocks[b0:b1], still.det.means[b0:b1],
+                                 t_mid, seg.acc)]
+    if seg.gyro is not None:
+        tests.append(gyroscope_drift(session.gyro, session.t_gyro, still.block_times[b0:b1],
+                                     seg.gyro.model.K))
+    return [w for t in tests if t is not None and (w := t.warning(where)) is not None]
 
 
 def _drop_saturated(acc: np.ndarray, det: Detection) -> tuple[Detection, int]:

@@ -72,7 +72,7 @@ class Result:
     warnings: list[RunWarning] = field(default_factory=list)
     guide: Guide | None = None  # poses, holds and turns against the limits; what to record
     verdict: Verdict | None = None  # good / usable with caveats / not usable, and why
-    # the magnetometer over the whole session (M6, stages/mag.py); None without one, or when
+    # the magnetometer over the whole session (M8, stages/mag.py); None without one, or when
     # it could not be calibrated (the warnings say why)
     magnetometer: MagFit | None = None
 

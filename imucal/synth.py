@@ -22,7 +22,7 @@ from imucal.streams import Stream
 
 @dataclass(frozen=True)
 class MagTruth:
-    """The magnetometer that made a synthetic session (model M6 of :mod:`imucal.stages.mag`):
+    """The magnetometer that made a synthetic session (model M8 of :mod:`imucal.stages.mag`):
     ``m = R_am M (m_raw - b)`` with ``det M = 1``, ``|m| = field`` (raw unit) and the field
     ``dip_deg`` below the horizon. ``disturbance``: ``[t0, t1)`` in which a magnet carried
     with the sensor adds ``disturbance_field`` (raw unit, the magnetometer's frame) to the
@@ -47,7 +47,7 @@ class MagTruth:
                 "disturbance_field": None if self.disturbance_field is None
                 else self.disturbance_field.tolist(),
                 "model": "m = R_am M (m_raw - b), det M = 1, |m| = field "
-                         "(imucal.stages.mag, M6)"}
+                         "(imucal.stages.mag, M8)"}
 
 
 @dataclass(frozen=True)
@@ -126,8 +126,15 @@ class Motion:
 
 
 def make_motion(rng: np.random.Generator, poses: int, still: float, move: float,
-                init_still: float) -> Motion:
-    q = quat.random_unit(poses, rng)
+                init_still: float, coplanar: bool = False) -> Motion:
+    if coplanar:
+        # Every turn about the body's x axis, by 30-120 deg either way: gravity (body frame)
+        # stays in the y-z plane, a session that leaves directions unmeasured (issue 27).
+        step = rng.uniform(np.radians(30), np.radians(120), poses) * rng.choice([-1, 1], poses)
+        roll = np.cumsum(step) - step[0]
+        q = quat.from_rotvec(np.outer(roll, [1.0, 0.0, 0.0]))
+    else:
+        q = quat.random_unit(poses, rng)
     rel = quat.multiply(quat.conjugate(q[:-1]), q[1:])  # q_k = q_(k-1) (x) rel: body-frame turn
     rv = quat.to_rotvec(rel)
     angle = np.linalg.norm(rv, axis=1)
@@ -168,6 +175,8 @@ def make_session(
     mag_R: np.ndarray | None = None,
     mag_disturbance: tuple[float, float] | None = None,
     mag_disturbance_size: float = 0.3,
+    coplanar: bool = False,
+    acc_drift: float = 0.0,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -184,9 +193,13 @@ def make_session(
 
     ``mag_rate`` (Hz) adds a magnetometer in gauss on its own clock, as the session's first
     other stream (:func:`add_magnetometer`); the rest of the session is the same as without it.
+    ``acc_drift`` is the total change of the accelerometer bias over the session, g, linear
+    in time along a random direction (drawn apart: the rest of the session is the same).
+    ``coplanar`` turns the device about its x axis only: every pose's gravity lies in one
+    plane, so the data cannot determine every parameter (an ill-posed session).
     """
     rng = np.random.default_rng(seed)
-    motion = make_motion(rng, poses, still, move, init_still)
+    motion = make_motion(rng, poses, still, move, init_still, coplanar)
     duration = float(motion.still[-1, 1])
     gyro_rate = gyro_rate or acc_rate
     t_a = np.arange(int(duration * acc_rate)) / acc_rate
@@ -215,6 +228,9 @@ def make_session(
 
     raw_a = _distort(ideal_a, t_a, acc_truth, acc2, t_change)
     raw_a += rng.normal(0, acc_noise, raw_a.shape)
+    if acc_drift:
+        way = np.random.default_rng([seed, 2]).normal(0, 1, 3)
+        raw_a += np.outer(t_a / max(duration, 1e-9), acc_drift * way / np.linalg.norm(way))
     raw_g = _distort(w, t_g, gyro_truth, gyro2, t_change) + drift * t_g[:, None]
     raw_g += rng.normal(0, gyro_noise, raw_g.shape)
 
@@ -265,7 +281,7 @@ def add_magnetometer(session: Session, truth: Truth, motion: Motion, seed: int, 
                      disturbance_size: float = 0.3) -> tuple[Session, Truth]:
     """The session with a magnetometer (gauss) in the world field ``field (cos dip, 0, -sin
     dip)`` (world z up, x magnetic north), read in the body frame, ``m_body =
-    R(q)' f``, and made raw by the inverse of M6: ``m_raw = M^-1 R_am' m_body + b`` plus white
+    R(q)' f``, and made raw by the inverse of M8: ``m_raw = M^-1 R_am' m_body + b`` plus white
     noise ``noise`` per axis. Its own generator (``[seed, 23]``), so the accelerometer and
     gyroscope are those of the session without it. Unset parameters are drawn: hard iron
     about 0.2 field, soft iron 5 % scale and 2 % cross terms (det 1), ``R_am`` 2 degrees per

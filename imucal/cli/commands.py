@@ -234,7 +234,7 @@ def apply(
 
 
 def _mag_output(out: str | Path, signals) -> str:
-    """What became of the magnetometer: calibrated (M6) beside the others, or kept out of a
+    """What became of the magnetometer: calibrated (M8) beside the others, or kept out of a
     table because its clock is its own."""
     from imucal.io.export import mag_rows
 

@@ -173,7 +173,10 @@ def _print_report(report, limits) -> int:
                   for r in failed]
     if out_of_spec:
         lines.append("out of spec:")
-        lines += [f"  - {r['device']}/{r['session']}: {'; '.join(r['spec_broken'])}"
+        # a spec fails what it cannot judge too (imucal.fleet.spec): say which limits
+        lines += [f"  - {r['device']}/{r['session']}: " + "; ".join(
+            list(r["spec_broken"] or []) + [f"{k}: cannot be judged on this session"
+                                            for k in r.get("spec_unchecked") or []])
                   for r in out_of_spec]
     if by["duplicate"]:
         lines.append("duplicates (same bytes, calibrated once):")

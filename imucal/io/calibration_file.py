@@ -149,7 +149,7 @@ def result_to_dict(result: Result) -> dict:
     } | _magnetometer_keys(result)
 
 
-MAG_MODEL = ("m = R_am M (m_raw - b) (imucal M6): b the hard iron and M the soft iron (symmetric, "
+MAG_MODEL = ("m = R_am M (m_raw - b) (imucal M8): b the hard iron and M the soft iron (symmetric, "
              "det M = 1) in the raw unit, so |m| = field in the raw unit; R_am the rotation from "
              "the magnetometer's corrected frame to the accelerometer's calibrated frame (M2's); "
              "u . m / field = -sin(dip) for the calibrated accelerometer's up u when still. "

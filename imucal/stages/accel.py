@@ -8,6 +8,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.models import ACC_PARAM_NAMES, ACC_THETA0, SensorModel, acc_theta
+from imucal.numerics.determinacy import Determinacy, determinacy
 from imucal.numerics.lcurve import lcurve_corner
 from imucal.numerics.least_squares import FactoredCov, FitReport, fit_tikhonov, sandwich_cov
 from imucal.numerics.windows import block_means, centred_segment_sums
@@ -33,6 +34,14 @@ from imucal.warning import RunWarning
 
 TIE_RTOL = 1e-10  # regularised costs this close (relative) are the same minimum
 EXCESS_ROUNDS = 3  # renewals of the ML weights with the excess variance tau^2
+# A parameter the data alone (method.md M6) pin no better than this (nominal frame: 1 = |g|
+# for a scale or a bias, 1 rad for a misalignment, each moving the calibrated output by about
+# its own size in units of |g|) is undetermined (issue 27): a pose along the direction it
+# governs could be off by more than the verdict's not-usable limit, 10 mg
+# (imucal.stages.verdict.ACC_POOR_MG), one standard error away. Measured: 6e-5 to 1.8e-4 on
+# well-posed synthetic sessions and the sample; 0.03 to 2e4 for the parameters a coplanar
+# session leaves open.
+UNDETERMINED_STD = 0.01
 
 
 @dataclass(frozen=True)
@@ -70,8 +79,10 @@ class AccFit:
     """The accelerometer calibration of one segment, in the raw signal's units."""
 
     model: SensorModel  # a = T K (a_raw - b), a in units of |g| (g_out)
-    std: np.ndarray  # standard errors of (a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z)
-    cov: np.ndarray  # (9, 9) their covariance, raw units
+    # standard errors of (a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z) from the data alone
+    # (the prior is no measurement), NaN for the undetermined ones (numerics/determinacy.py)
+    std: np.ndarray
+    cov: np.ndarray  # (9, 9) the regularised estimator's covariance, raw units (propagated)
     theta_nominal: np.ndarray
     nominal: Nominal
     g_out: float
@@ -84,6 +95,7 @@ class AccFit:
     sweep: LambdaSweep | None = None  # the L-curve's solutions in raw units (None: fixed lambda)
     warnings: list[RunWarning] = field(default_factory=list)
     points: FitPoints | None = None  # the data fitted: weights, targets, noise model (M3)
+    undetermined: tuple[str, ...] = ()  # parameters the data do not determine (UNDETERMINED_STD)
 
     def model_for(self, theta_nominal: np.ndarray) -> SensorModel:
         """The raw-unit model of a nominal-frame solution (an L-curve point, an LM step)."""
@@ -168,19 +180,36 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
         noise = BlockNoise(n=noise.n, var=noise.var / nominal.scale**2)
         data, curve, report, start_costs = _solve_ml(pts, noise, settings, starts)
 
-    warnings = _sanity(report, pts, pts_raw, nominal)
+    det = _determinacy(report, data)
+    warnings = _sanity(report, pts, pts_raw, nominal, det)
     theta = report.theta
     model = to_raw_model(theta, nominal, g_out)
     k_scale = g_out / nominal.scale  # standard errors scale as the parameters do
     d = np.r_[np.ones(3), np.full(3, k_scale), np.full(3, nominal.scale)]
     cov = _cov_nominal(report, data) * np.outer(d, d)
-    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    std = det.std * d
     sweep = None if curve is None else lambda_sweep(curve, nominal, g_out,
                                                     block_means(acc, blocks))
     return AccFit(model=model, std=std, cov=cov, theta_nominal=theta, nominal=nominal, g_out=g_out,
                   lam=report.lam, report=report, starts=start_costs, lcurve=curve,
                   n_points=len(pts), n_blocks=len(blocks), sweep=sweep, warnings=warnings,
-                  points=data)
+                  points=data, undetermined=det.undetermined)
+
+
+def _s2(report: FitReport, data: FitPoints) -> float | None:
+    """The variance of one weighted residual the noise model gives ("ml" points; see
+    :func:`_cov_nominal`), None for the point modes without one."""
+    if data.white_var is None:
+        return None
+    return float(np.mean(data.weight**2 * (data.white_var + data.excess_var)))
+
+
+def _determinacy(report: FitReport, data: FitPoints) -> Determinacy:
+    """The data-only standard errors (nominal frame) and the parameters they leave open."""
+    s2 = _s2(report, data)
+    if s2 is None:  # the fit's own estimate, as report.cov's
+        s2 = report.data_cost / max(report.n_data - len(report.theta), 1)
+    return determinacy(report.jac, s2, ACC_PARAM_NAMES, UNDETERMINED_STD)
 
 
 def _cov_nominal(report: FitReport, data: FitPoints) -> np.ndarray:
@@ -194,9 +223,9 @@ def _cov_nominal(report: FitReport, data: FitPoints) -> np.ndarray:
     model's larger value is kept. Other point modes have no noise model: the fit's own
     estimate.
     """
-    if data.white_var is None:
+    s2 = _s2(report, data)
+    if s2 is None:
         return report.cov
-    s2 = float(np.mean(data.weight**2 * (data.white_var + data.excess_var)))
     cov, _ = sandwich_cov(report.jac, report.lam, s2)
     return cov
 
@@ -276,8 +305,8 @@ def _lcurve(data: FitPoints, lambdas: np.ndarray, starts: dict[str, np.ndarray]
                             fits[corner].theta})
 
 
-def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal
-            ) -> list[RunWarning]:
+def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: Nominal,
+            det: Determinacy) -> list[RunWarning]:
     """Flag the escape routes of the norm cost (method.md §3) instead of returning them."""
     out: list[RunWarning] = []
     th = report.theta
@@ -296,13 +325,15 @@ def _sanity(report: FitReport, pts: np.ndarray, pts_raw: np.ndarray, nominal: No
     if report.cost > report.cost_start * (1 + 1e-9):
         out.append(RunWarning("acc_cost_rose", "accelerometer fit ended with a higher cost "
                               "than it started from"))
-    weak = undetermined(report.jac, ACC_PARAM_NAMES)
+    weak = det.undetermined
     if weak:
         # Plain words first; the fit's condition number (method.md §3) last, for who wants it.
         out.append(RunWarning("acc_undetermined", f"the still poses do not determine "
-                              f"{', '.join(weak)}: kept near the nominal value, not measured; "
-                              "record poses in more directions (condition number "
-                              f"{report.jac_cond:.3g})"))
+                              f"{', '.join(weak)}: kept near the nominal value, not measured "
+                              f"(the data alone leave each more than {UNDETERMINED_STD:g} "
+                              "uncertain; no standard error given); the other figures cannot "
+                              "see the directions they govern: record poses in more directions "
+                              f"(condition number {report.jac_cond:.3g})"))
     if np.max(np.abs(th[:3])) > 0.2:
         out.append(RunWarning("acc_misalignment_large", f"accelerometer misalignment angles "
                               f"{np.round(th[:3], 3).tolist()} rad are implausibly large"))

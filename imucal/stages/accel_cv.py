@@ -8,8 +8,9 @@ fit without it (leave-one-block-out): the refit is the Gauss-Newton step from th
 block, so it costs nothing next to the fit itself.
 
 When the held-out error is much larger than the in-sample one, the fit is overfitted: the
-result names the parameters the data cannot pin (small singular values of the weighted
-Jacobian) and the directions of the sphere that no pose covers, so a user knows what to record.
+result names the parameters the data cannot pin (their data-only standard errors,
+:mod:`imucal.numerics.determinacy`) and the directions of the sphere that no pose covers, so
+a user knows what to record.
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imucal.models import ACC_PARAM_NAMES, ACC_THETA0
+from imucal.models import ACC_THETA0
 from imucal.numerics.kfold import kfold_refits
-from imucal.stages.accel import AccFit, to_raw_model, undetermined
+from imucal.stages.accel import AccFit, to_raw_model
 
 # Held-out RMS above this many times the in-sample one is overfitting, and above 1.5 times
 # what a well-posed fit of this size shows anyway: with B blocks and p effective parameters
@@ -38,7 +39,7 @@ class AccCrossValidation:
 
     block_error_mg: np.ndarray  # (B,) |calibrated mean| / |g| - 1, held-out fit
     in_sample_error_mg: np.ndarray  # (B,) the same with the fit on every block
-    undetermined: tuple[str, ...]  # parameters the data barely constrain
+    undetermined: tuple[str, ...]  # parameters the data do not determine (AccFit's)
     uncovered: np.ndarray  # (U, 3) unit directions (calibrated frame) no pose comes near
     coverage: float  # fraction of the sphere's test directions within reach of a pose
     expected_ratio: float  # held-out / in-sample RMS a well-posed fit of this size shows
@@ -97,7 +98,7 @@ def leave_one_block_out(fit: AccFit, means_raw: np.ndarray) -> AccCrossValidatio
     n = len(r)
     return AccCrossValidation(block_error_mg=held_out.reshape(B),
                               in_sample_error_mg=np.atleast_1d(in_sample),
-                              undetermined=tuple(undetermined(J, ACC_PARAM_NAMES)),
+                              undetermined=fit.undetermined,
                               uncovered=uncovered, coverage=covered,
                               expected_ratio=n / max(n - p_eff, 1e-9))
 

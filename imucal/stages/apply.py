@@ -21,7 +21,7 @@ from imucal.session import Session
 
 @dataclass(frozen=True)
 class MagModel:
-    """The magnetometer's M6 (stages/mag.py) as applying it needs: ``m = R_am M (m_raw - b)``
+    """The magnetometer's M8 (stages/mag.py) as applying it needs: ``m = R_am M (m_raw - b)``
     in the raw unit ``unit`` (None: unstated), over the whole session."""
 
     M: np.ndarray
@@ -157,7 +157,7 @@ class CalibratedSignals:
     gyro: np.ndarray | None  # rad/s
     acc_unit: str
     t_mag: np.ndarray | None = None  # the magnetometer's own clock, s
-    mag: np.ndarray | None = None  # M6 applied: the raw unit, the accelerometer's frame
+    mag: np.ndarray | None = None  # M8 applied: the raw unit, the accelerometer's frame
 
     @property
     def acc_norm(self) -> np.ndarray:
@@ -262,7 +262,7 @@ def _unit(units: dict, key: str, known: tuple[str, ...], optional: bool = False)
 
 
 def _mag_model(d: Any) -> MagModel | None:
-    """The magnetometer section's M, b, R_am (M6), or None where the file has none or says
+    """The magnetometer section's M, b, R_am (M8), or None where the file has none or says
     it was not calibrated; refused unless M is finite and invertible, b finite and R_am a
     rotation (or null: none estimated)."""
     if d is None or (isinstance(d, dict) and d.get("calibrated") is False):

@@ -9,11 +9,11 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.models import GYRO_PARAM_NAMES, SensorModel, gyro_theta
+from imucal.numerics.determinacy import determinacy
 from imucal.numerics.directions import DISTINCT_ANGLE_DEG
 from imucal.numerics.least_squares import (
     FactoredCov,
     FitReport,
-    sandwich_cov,
     trace_of,
 )
 from imucal.numerics.quaternion import rotate_inverse, to_matrix
@@ -47,6 +47,12 @@ def small_turns_text(n_small: int, n: int) -> str:
 # Held-out error this many times the in-sample one is said to be overfitting (method.md §5).
 # Measured: 1.1 to 1.4 on the real recordings in ../shared/data.
 OVERFIT_RATIO = 2.0
+# A misalignment or scale the turns alone pin no better than this is undetermined (issue 27):
+# off by that much, a 90-deg turn about the axis it governs ends 3 deg off gravity, the
+# verdict's not-usable limit (imucal.stages.verdict.GYRO_POOR_DEG); a fitted bias, when it
+# would turn the device 3 deg over the session's median turn. Measured: 1e-4 on well-posed
+# synthetic sessions and the sample; 0.2-0.5 for what a session of turns about one axis leaves.
+UNDETERMINED_TURN_DEG = 3.0
 
 
 @dataclass(frozen=True)
@@ -69,6 +75,7 @@ class GyroFit:
     # no gyroscope data: see imucal.stages.sanity)
     cv: GyroCV  # the same prediction out of sample, and the bias choice
     warnings: list[RunWarning] = field(default_factory=list)
+    undetermined: tuple[str, ...] = ()  # parameters the turns do not determine (std NaN)
 
     def model_for(self, theta: np.ndarray) -> SensorModel:
         """The raw-unit model of any parameter vector of the fit (a step of its trace): scales
@@ -274,7 +281,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
         cv = dataclasses.replace(cv, angle=angle_cv)
     model = gyro_model_of(report.theta, bias, s0)
     q_model = tr_all.rotations(model)  # integrated once, used three times below
-    std = _standard_errors(report, gravity, gravity_cov, q_model, keep, s0, settings.lam)
+    turn_s = float(np.median(t[tr_all.ends] - t[tr_all.starts])) if len(tr_all) else 1.0
+    std, weak = _standard_errors(report, gravity, gravity_cov, q_model, keep, s0, turn_s)
 
     u_prev, u_meas = u[:-1], u[1:]  # every transition, the excluded ones too
     before = None
@@ -290,35 +298,48 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     # Judged on the turns fitted: one without data turns by nothing, one across a gap in a step.
     warnings += _fit_warnings(tr, model, report, angle_between(u_meas, u_prev)[keep],
                               in_sample, cv)
+    if weak:
+        warnings.append(RunWarning(
+            "gyro_undetermined", f"the turns do not determine the gyroscope's "
+            f"{', '.join(weak)}: kept near the nominal value, not measured (no standard error "
+            "given); turns it did not see cannot show it either, as none turned about the axes "
+            "they govern: record turns about every axis"))
     return GyroFit(model=model, std=std, bias_source=bias_source, nominal_scale=s0,
                    nominal_how=how, lam=settings.lam, report=report, u_prev=u_prev,
                    u_meas=u_meas, u_pred_before=before, u_pred_after=after,
                    t_transition=np.column_stack([t[tr_all.starts], t[tr_all.ends]]),
                    rotation_angle=np.radians(angle), static_bias=bias, excluded=excluded,
-                   cv=cv, warnings=warnings)
+                   cv=cv, warnings=warnings, undetermined=weak)
 
 
 def _standard_errors(report: FitReport, gravity: np.ndarray,
                      gravity_cov: np.ndarray | FactoredCov | None, q_model: np.ndarray,
-                     keep: np.ndarray, s0: float, lam: float) -> np.ndarray:
-    """Standard errors of the parameters in raw units, with the measured gravity's own errors
-    in the residuals' covariance when they are known (:func:`direction_error_cov`)."""
-    cov = report.cov
+                     keep: np.ndarray, s0: float, turn_s: float
+                     ) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Standard errors of the parameters in raw units from the turns alone (the prior is no
+    measurement: :mod:`imucal.numerics.determinacy`), with the measured gravity's own errors
+    in the residuals' covariance when they are known (:func:`direction_error_cov`); NaN for
+    the parameters they leave undetermined (UNDETERMINED_TURN_DEG), which are named.
+    ``turn_s`` is the median turn's duration, s."""
+    n, p = report.jac.shape
+    s2, meat = report.data_cost / max(n - p, 1), None
     if gravity_cov is not None:
         meat = direction_error_cov(gravity, gravity_cov, to_matrix(q_model))
         if not keep.all():
             meat = (meat.select(keep) if isinstance(meat, FactoredCov)
                     else np.asarray(meat)[np.ix_(np.repeat(keep, 3), np.repeat(keep, 3))])
-        n, p = report.jac.shape
         # Each residual is the difference of two unit vectors: only its 2 components across
         # u_k carry error to first order, so a transition gives 2 degrees of freedom, not 3.
         s2 = max(report.data_cost - trace_of(meat), 0.0) / max(2 * n // 3 - p, 1)
-        cov, _ = sandwich_cov(report.jac, lam, s2, meat)
-    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    angle = np.radians(UNDETERMINED_TURN_DEG)
+    limits = np.r_[np.full(9, angle / (np.pi / 2)), np.full(p - 9, angle / max(turn_s, 1e-9))]
+    names = GYRO_PARAM_NAMES + ("b_x", "b_y", "b_z")[:p - 9]
+    det = determinacy(report.jac, s2, names, limits, meat)
+    std = det.std.copy()
     std[6:9] *= s0
     if len(std) > 9:
         std[9:12] /= s0
-    return std
+    return std, det.undetermined
 
 
 def _fit_warnings(tr_all: Transitions, model: SensorModel, report: FitReport,

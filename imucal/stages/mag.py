@@ -1,6 +1,6 @@
-"""The magnetometer: hard and soft iron, and its rotation to the accelerometer (model M6).
+"""The magnetometer: hard and soft iron, and its rotation to the accelerometer (model M8).
 
-Model M6 (docs/method.md will carry it beside M2 and M4)::
+Model M8 (docs/method.md §9)::
 
     m = R_am M (m_raw - b),        |m| = F,        u . m / F = -sin(dip)  (still)
 
@@ -142,7 +142,7 @@ class MagQuality:
 
 @dataclass(frozen=True)
 class MagFit:
-    """M6 fitted, in the raw unit, with the standard errors of every parameter.
+    """M8 fitted, in the raw unit, with the standard errors of every parameter.
 
     ``R_am`` is None (and ``dip_deg``) when fewer than MIN_BLOCKS still blocks hold
     magnetometer samples. ``std_R_am_deg`` are the standard errors of the small rotation
@@ -492,7 +492,7 @@ def _missing_words(uncovered: np.ndarray, frame: str) -> str:
 
 def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None,
                            up: np.ndarray | None = None) -> MagFit:
-    """Fit M6 to a magnetometer stream; ``block_times`` (B, 2) the still blocks' time
+    """Fit M8 to a magnetometer stream; ``block_times`` (B, 2) the still blocks' time
     intervals (the same clock as the stream's) and ``up`` (B, 3) the calibrated
     accelerometer's mean in each (any unit) for ``R_am`` and the dip; without them, or with
     fewer than MIN_BLOCKS usable blocks, ``R_am`` and the dip are not estimated."""

@@ -21,6 +21,12 @@ not seen; in-sample figures flatter a fit with few poses (the Ferraris session o
   shows on the shared recordings (1.5-3.7 deg); calibrated, 0.05-0.53 deg held out.
 - overfitting: held out much worse than in-sample (:attr:`AccCrossValidation.overfitted`, and
   :data:`imucal.stages.gyro.OVERFIT_RATIO` for the turns), the same tests as the warnings.
+- parameters the data do not determine (issue 27): a held-out figure is no verdict on a
+  direction no pose or turn measured, since leaving one block out cannot show what no block
+  saw (a coplanar session: 0.56 mg held out, 22 mg RMS in truth). A parameter whose data-only
+  standard error would let a pose or a turn along its direction pass the not-usable limit
+  (:data:`imucal.stages.accel.UNDETERMINED_STD`, :data:`imucal.stages.gyro.UNDETERMINED_TURN_DEG`)
+  makes the run not usable, whatever the figures: the prior held it, nothing measured it.
 """
 
 from __future__ import annotations
@@ -31,9 +37,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from imucal.stages.accel_cv import AccCrossValidation, axis_words
+from imucal.stages.drift import ADVICE as DRIFT_ADVICE
 from imucal.stages.guide import MIN_TILT_DEG, ORIENTATIONS_NEEDED, Guide
 from imucal.stages.gyro import OVERFIT_RATIO as GYRO_OVERFIT_RATIO
 from imucal.stages.gyro import GyroFit
+from imucal.warning import RunWarning
 
 GOOD = "good"
 CAVEATS = "usable with caveats"
@@ -113,15 +121,22 @@ class SegmentFigures:
     orientations: int
 
 
-def judge(segments: Sequence[SegmentFigures], guide: Guide | None) -> Verdict:
+def judge(segments: Sequence[SegmentFigures], guide: Guide | None,
+          drifts: Sequence[RunWarning] = ()) -> Verdict:
     """The verdict of a run: every finding, the worst decides (ties: the first found, in the
-    order accelerometer held out, gyroscope held out, undetermined parameters, poses, turns)."""
+    order accelerometer held out, gyroscope held out, undetermined parameters, poses, drifts,
+    turns). ``drifts`` are the warnings of a bias that moved within a segment
+    (:mod:`imucal.stages.drift`): caveats, since one calibration was fitted to a sensor that
+    changed, and the held-out figures average over the change instead of showing it."""
     findings: list[Finding] = []
     figures: dict[str, float | None] = {}
     for seg in segments:
         findings += _accelerometer(seg, guide, figures)
         if seg.gyro is not None:
             findings += _gyroscope(seg, guide, figures)
+    findings += [Finding(w.code, CAVEATS, w.text.removesuffix(f"; {DRIFT_ADVICE}"),
+                         "let the sensor warm up (run it 10-15 minutes) before recording, "
+                         "and keep the session short") for w in drifts]
     if guide is not None:
         findings += _recording(guide)
     if not findings:
@@ -135,17 +150,26 @@ def judge(segments: Sequence[SegmentFigures], guide: Guide | None) -> Verdict:
 def with_spec(verdict: Verdict, check: dict, source: str) -> Verdict:
     """The verdict with a maker's limits applied (``check`` as :mod:`imucal.fleet.spec` gives
     it: ``pass``, ``broken``, ``unchecked``, and the ``limits``): a unit out of its limits is
-    not usable whatever the calibration's quality. The limit it breaks is the reason; the
-    calibration's own verdict becomes the first of the others."""
+    not usable whatever the calibration's quality, and so is one the limits could not judge
+    (a spec passes only what it judged). The limit it breaks (else the first it could not
+    judge) is the reason; the calibration's own verdict becomes the first of the others."""
     verdict = replace(verdict, spec=dict(check) | {"file": source})
     broken = list(check.get("broken") or [])
-    if not broken:
+    unchecked = list(check.get("unchecked") or [])
+    if not broken and not unchecked:
         return verdict
-    more = f" (and {len(broken) - 1} more)" if len(broken) > 1 else ""
     own = Finding(verdict.code, verdict.level, verdict.reason, verdict.next_step)
-    return replace(verdict, level=NOT_USABLE, code="out_of_spec",
-                   reason=f"out of the limits of {source}: {broken[0]}{more}",
-                   next_step="set the unit aside, or widen the limits if they are wrong",
+    if broken:
+        more = f" (and {len(broken) - 1} more)" if len(broken) > 1 else ""
+        return replace(verdict, level=NOT_USABLE, code="out_of_spec",
+                       reason=f"out of the limits of {source}: {broken[0]}{more}",
+                       next_step="set the unit aside, or widen the limits if they are wrong",
+                       caveats=(own, *verdict.caveats))
+    return replace(verdict, level=NOT_USABLE, code="spec_unchecked",
+                   reason=(f"the limits of {source} could not be judged on this session: "
+                           f"{', '.join(unchecked)} (no figure to compare)"),
+                   next_step=("remove the limits this session cannot be judged on, or record "
+                              "what they need (the unit's nominal scale, a gyroscope)"),
                    caveats=(own, *verdict.caveats))
 
 
@@ -222,10 +246,12 @@ def _accelerometer(seg: SegmentFigures, guide: Guide | None,
     elif cv.overfitted:
         out.append(Finding("acc_overfitted", CAVEATS, where + said, poses))
     if cv.undetermined:
-        out.append(Finding("acc_undetermined", CAVEATS,
+        out.append(Finding("acc_undetermined", NOT_USABLE,
                            f"{where}the still poses do not determine "
                            f"{', '.join(cv.undetermined)}: kept near the nominal value, "
-                           "not measured", poses))
+                           "not measured; a pose along the directions they govern may be off "
+                           f"by more than {ACC_POOR_MG:g} mg, which the figures cannot show "
+                           "(no pose measured them)", poses))
     if seg.orientations < ORIENTATIONS_NEEDED:
         out.append(Finding("few_orientations", CAVEATS,
                            f"{where}{seg.orientations} distinct orientations: "
@@ -245,19 +271,25 @@ def _gyroscope(seg: SegmentFigures, guide: Guide | None,
     figures[_key(seg, "gravity_held_out_deg")] = held
     figures[_key(seg, "gravity_in_sample_deg")] = ins
     where, turns = _where(seg), _turns_next(guide)
+    weak = [] if not g.undetermined else [Finding(
+        "gyro_undetermined", NOT_USABLE,
+        f"{where}the turns do not determine the gyroscope's {', '.join(g.undetermined)}: kept "
+        "near the nominal value, not measured; a turn about the axes they govern may end more "
+        f"than {GYRO_POOR_DEG:g} deg off, which the figures cannot show (no turn measured them)",
+        "record turns about every axis: tip the device forward, sideways and around")]
     if not np.isfinite(held):
         return [Finding("gyro_unchecked", CAVEATS, f"{where}the gyroscope fit could not be "
-                        "checked on turns it did not see (too few turns)", turns)]
+                        "checked on turns it did not see (too few turns)", turns), *weak]
     overfitted = ins > 0 and held > GYRO_OVERFIT_RATIO * ins
     said = (f"{'overfitted: ' if overfitted else ''}turns the gyroscope fit did not see end "
             f"{held:.2g} deg off the measured gravity, against {ins:.2g} deg for those it saw")
     if held > GYRO_POOR_DEG:
-        return [Finding("gyro_held_out", NOT_USABLE, where + said, turns)]
+        return [Finding("gyro_held_out", NOT_USABLE, where + said, turns), *weak]
     if held > GYRO_CAVEAT_DEG:
-        return [Finding("gyro_held_out", CAVEATS, where + said, turns)]
+        return [Finding("gyro_held_out", CAVEATS, where + said, turns), *weak]
     if overfitted:
-        return [Finding("gyro_overfitted", CAVEATS, where + said, turns)]
-    return []
+        return [Finding("gyro_overfitted", CAVEATS, where + said, turns), *weak]
+    return weak
 
 
 def _recording(guide: Guide) -> list[Finding]:

@@ -21,10 +21,11 @@ from imucal.io.export import write_session_mat
 from imucal.models import acc_theta, gyro_theta
 from imucal.synth import make_session, random_acc_model, random_gyro_model
 
+# The error limits judge the held-out figures (issue 27): 12 poses leave 0.2-1.4 mg held out.
 SPEC = """acc_bias_mg = 40
 acc_scale_pct = 3
 acc_misalignment_mrad = 10
-static_norm_error_mg = 1
+static_norm_error_mg = 2
 gravity_error_deg = 0.5
 """
 OUT_OF_SPEC = "devB/2024-05-03_s.mat"  # its accelerometer bias is 120 mg on x

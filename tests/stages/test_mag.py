@@ -1,4 +1,4 @@
-"""The magnetometer's calibration (M6, imucal.stages.mag) against synthetic truth and the shared
+"""The magnetometer's calibration (M8, imucal.stages.mag) against synthetic truth and the shared
 real recordings."""
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def test_standard_errors_are_honest_over_twenty_seeds():
 
 
 def _heading_error_deg(fit: MagFit, true, seed: int) -> float:
-    """RMS heading error of the fitted M6 against the truth over 50 random orientations: the
+    """RMS heading error of the fitted M8 against the truth over 50 random orientations: the
     heading of the field's horizontal part against the accelerometer's x axis."""
     q = Rotation.random(50, random_state=seed)
     dip = np.radians(true.dip_deg)

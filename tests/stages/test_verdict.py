@@ -115,3 +115,13 @@ def test_calibration_file_holds_the_verdict_at_the_top_level(run):
     assert d["verdict"]["thresholds"]["acc_held_out_mg"] == {"caveats": V.ACC_CAVEAT_MG,
                                                               "not_usable": V.ACC_POOR_MG}
     assert list(d)[-1] == "verdict" and d["format_version"] == 2
+
+
+def test_undetermined_parameters_make_good_figures_not_usable():
+    # Figures well inside every limit (a coplanar session's): no held-out pose saw the
+    # direction the undetermined parameters govern, so they decide (issue 27).
+    v = V.judge([_seg(0.2, 0.18, undetermined=("s_x", "b_x"))], None)
+    assert v.level == V.NOT_USABLE and v.code == "acc_undetermined" and not v.usable
+    assert v.reason.startswith("the still poses do not determine s_x, b_x: kept near the "
+                               "nominal value, not measured; a pose along the directions")
+    assert f"more than {V.ACC_POOR_MG:g} mg" in v.reason
