@@ -139,7 +139,29 @@ def _overview(result: Result) -> tuple[Line, ...]:
         Line("segments", seg_text),
         Line("output", f"calibrated accelerometer in {cal.acc_unit} (|g| = {cal.g:g})"
                        + (", gyroscope in rad/s" if s.has_gyro else "")),
+        *_magnetometer(result),
     )
+
+
+def _magnetometer(result: Result) -> tuple[Line, ...]:
+    """The magnetometer in a line (M8, stages/mag.py): its field, the norm's error in and out
+    of sample, the directions reached; or why it was not calibrated."""
+    stream = next((x for x in result.session.others if x.kind == "mag"), None)
+    if stream is None:
+        return ()
+    fit = result.magnetometer
+    if fit is None:
+        why = [w.message for w in result.warnings if w.code == "mag_not_calibrated"]
+        return (Line("magnetometer", why[0] if why else f"{stream.name}: not calibrated"),)
+    q, unit = fit.quality, fit.unit or "raw units"
+    dip = "" if fit.dip_deg is None else f", dip {fit.dip_deg:.1f} deg"
+    held = ("" if q.norm_rms_held_out_pct is None
+            else f" ({fmt(q.norm_rms_held_out_pct, '.2g')} % held out)")
+    left = (f"; {len(fit.disturbances)} disturbed interval(s) left out"
+            if fit.disturbances else "")
+    return (Line("magnetometer", f"{fit.stream}: field {fmt(fit.field, '.4g')} {unit}{dip}; "
+                                 f"|m| within {fmt(q.norm_rms_pct, '.2g')} % of it{held}; "
+                                 f"{q.coverage:.0%} of directions reached{left}"),)
 
 
 def _details(result: Result) -> tuple[Line, ...]:

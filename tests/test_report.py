@@ -117,3 +117,20 @@ def test_the_first_screen_is_the_verdict_then_plain_words(sample):
     assert "Bonferroni" in last and "cost reached" in last
     for term in ("Bonferroni", "L-curve", "cost reached", "min length"):
         assert term not in first, term
+
+
+def test_the_magnetometer_in_a_line_of_the_overview():
+    """A session with a magnetometer: its field, the norm's error in and out of sample and the
+    directions reached, in the overview the CLI and the viewer print."""
+    import imucal
+    from imucal.report import report
+    from imucal.synth import make_session
+
+    session, truth = make_session(poses=20, seed=4, still=2.0, move=1.5, mag_rate=50.0)
+    result = imucal.calibrate(session)
+    line = next(x.text for x in report(result).overview if x.label == "magnetometer")
+    fit = result.magnetometer
+    assert line.startswith(f"{fit.stream}: field {fit.field:.4g}")
+    assert abs(fit.field - 0.5) < 0.01  # synth's field, gauss
+    assert f"dip {fit.dip_deg:.1f} deg" in line and abs(fit.dip_deg - 65.0) < 0.5
+    assert f"{fit.quality.coverage:.0%} of directions reached" in line
