@@ -38,6 +38,7 @@ class StreamLine:
     first: list[float]
     last: list[float]
     picked: bool  # what calibrate, apply, noise, view and batch take without a selector
+    # (the accelerometer and gyroscope, and the first magnetometer, which calibrate fits too)
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,7 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
             streams = read_log(p, key, name)
             try:
                 chosen = choose(streams, {}, acc_only=False)
-                picked = {id(chosen.acc), id(chosen.gyro)}
+                picked = {id(chosen.acc), id(chosen.gyro)} | _first_mag(chosen.others)
                 said = chosen.said
             except ImucalError as e:  # nothing to calibrate: listed all the same, and said
                 picked, said = set(), (e.problem,)
@@ -89,10 +90,17 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
                              streams.notes + said)
         sess = load_session(p, **load_kw)
         pair = _session_streams(sess)
+        mag = _first_mag(sess.others)
         return FileLines(name, "table", tuple(_line(s, True) for s in pair)
-                         + tuple(_line(s, False) for s in sess.others), sess.notes)
+                         + tuple(_line(s, id(s) in mag) for s in sess.others), sess.notes)
     except ImucalError as e:
         return FileLines(name, "", (), (), error=str(e))
+
+
+def _first_mag(others) -> set[int]:
+    """The magnetometer calibrate takes beside the pair: the first (stages/mag.py)."""
+    return {id(s) for s in others if s.kind == "mag"} and {
+        id(next(s for s in others if s.kind == "mag"))}
 
 
 def _session_streams(sess) -> list[Stream]:
@@ -120,8 +128,8 @@ def as_text(lines: FileLines) -> list[str]:
                    f"{s.duration_s:8.1f} s  {s.gaps} gap{'' if s.gaps == 1 else 's'}"
                    + (f"  ({extra})" if extra else ""))
     if any(s.picked for s in lines.streams):
-        out.append("  * taken by calibrate, apply, noise, view and batch unless --acc/--gyro "
-                   "name others")
+        out.append("  * taken by calibrate, apply, noise, view and batch unless --acc/--gyro/"
+                   "--mag name others")
     out += [f"  note: {n}" for n in lines.notes]
     return out
 

@@ -14,19 +14,20 @@ from imucal.io.logs import log_format, read_log
 FILES = {  # file -> (format shown, streams it must list, the pair taken by default)
     "ros1_imu_tools/phidgets_imu_upside_down.bag":
         ("ROS 1 bag", {"acc /imu/data_raw", "gyro /imu/data_raw", "mag /imu/mag"},
-         {"acc /imu/data_raw", "gyro /imu/data_raw"}),
+         {"acc /imu/data_raw", "gyro /imu/data_raw", "mag /imu/mag"}),
     "ros1_imu_tools/sparkfun_razor.bag": ("ROS 1 bag", None, None),
     "px4_ulog/sample_log_small.ulg":
         ("PX4 ULog", {f"{k} sensor_{n}:{i}" for i in range(3)
                       for k, n in (("acc", "accel"), ("gyro", "gyro"))}
          | {"acc sensor_combined", "gyro sensor_combined", "mag sensor_mag:0"},
-         {"acc sensor_accel:0", "gyro sensor_gyro:0"}),
+         {"acc sensor_accel:0", "gyro sensor_gyro:0", "mag sensor_mag:0"}),
     "ardupilot_dataflash/test.BIN":
         ("ArduPilot DataFlash log", {"acc IMU", "gyro IMU", "acc IMU2", "gyro IMU2", "temp IMU",
                                      "mag MAG", "mag MAG2", "mag MAG3"},
-         {"acc IMU", "gyro IMU"}),
+         {"acc IMU", "gyro IMU", "mag MAG"}),
     "broad/02_undisturbed_slow_rotation_B.hdf5":
-        ("HDF5", {"acc imu_acc", "gyro imu_gyr", "mag imu_mag"}, {"acc imu_acc", "gyro imu_gyr"}),
+        ("HDF5", {"acc imu_acc", "gyro imu_gyr", "mag imu_mag"},
+         {"acc imu_acc", "gyro imu_gyr", "mag imu_mag"}),
     "sunsided_mpu6050_hmc5883l/full-sphere/hmc5883l_compass.mat":
         ("HDF5", {"mag compassBuffer"}, set()),
 }
@@ -56,4 +57,4 @@ def test_inspect_of_the_csv_with_a_magnetometer(shared_data, capsys):
     assert main(["inspect", str(shared_data / "xio_fusion" / "sensor_data.csv")]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0] == "sensor_data.csv (table): 3 streams"
-    assert out[3].split()[:4] == ["mag", "m", "13514", "samples"]
+    assert out[3].split()[:5] == ["*", "mag", "m", "13514", "samples"]

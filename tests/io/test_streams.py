@@ -151,7 +151,8 @@ def test_inspect_lists_streams_and_what_is_taken(tmp_path, capsys):
     assert main(["inspect", str(path), "--json"]) == 0
     got = json.loads(capsys.readouterr().out)[0]
     rows = {(x["kind"], x["name"]): x for x in got["streams"]}
-    assert rows[("acc", "accelerometer")]["picked"] and not rows[("mag", "m")]["picked"]
+    assert rows[("acc", "accelerometer")]["picked"] and rows[("mag", "m")]["picked"]
+    assert not rows[("temp", "temp")]["picked"] and not rows[("acc", "a2")]["picked"]
     assert rows[("acc", "accelerometer")]["samples"] == len(s.t_acc)
     assert rows[("gyro", "gyroscope")]["rate_hz"] == pytest.approx(1 / np.median(np.diff(s.t_gyro)))
     assert rows[("mag", "m")]["first"] == pytest.approx([0.2, -0.1, 0.4])
