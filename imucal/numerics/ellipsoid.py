@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 # The 6 free entries of a symmetric 3x3 matrix, in the parameter vector's order.
 SYM_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -128,6 +127,8 @@ def ml_fit(x: np.ndarray, G0: np.ndarray, c0: np.ndarray, start: str = "given",
     xn, mu, s = _normalise(x)
     p = np.r_[vec_from_sym(G0 * s), (c0 - mu) / s]
     if refine:
+        from scipy.optimize import least_squares  # where a fit runs
+
         p = least_squares(lambda q: _res_jac(q, xn)[0], p, jac=lambda q: _res_jac(q, xn)[1],
                           method="lm", x_scale="jac", max_nfev=MAX_NFEV).x
     r, J = _res_jac(p, xn)
@@ -159,6 +160,8 @@ def _cauchy(x: np.ndarray, G0: np.ndarray, c0: np.ndarray) -> tuple[np.ndarray, 
     xn, mu, s = _normalise(x)
     p = np.r_[vec_from_sym(G0 * s), (c0 - mu) / s]
     for scale in (0.1, 0.03, 0.01):
+        from scipy.optimize import least_squares  # where a fit runs
+
         p = least_squares(lambda q: _res_jac(q, xn)[0], p, jac=lambda q: _res_jac(q, xn)[1],
                           loss="cauchy", f_scale=scale, max_nfev=ROBUST_NFEV).x
     return sym_from_vec(p[:6]) / s, mu + s * p[6:9]
@@ -187,6 +190,8 @@ def _sphere_ml(xn: np.ndarray, q0: np.ndarray | None = None) -> np.ndarray:
         sol = np.linalg.lstsq(np.column_stack([2 * xn, np.ones(len(xn))]),
                               np.sum(xn * xn, axis=1), rcond=None)[0]
         q0 = np.r_[np.sqrt(max(sol[3] + sol[:3] @ sol[:3], 1e-12)), sol[:3]]
+    from scipy.optimize import least_squares  # where a fit runs
+
     return least_squares(lambda v: _sphere_res_jac(v, xn)[0], q0,
                          jac=lambda v: _sphere_res_jac(v, xn)[1], method="lm",
                          max_nfev=MAX_NFEV).x

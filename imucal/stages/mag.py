@@ -47,9 +47,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
+from imucal.numerics import quaternion as quat
 from imucal.numerics.ellipsoid import (
     EllipsoidFit,
     fit_ellipsoid,
@@ -359,7 +358,7 @@ def _block_residuals(p: np.ndarray, R0: np.ndarray, raw_means: np.ndarray, u: np
     """``u_k . exp([d]x) R0 h_k + sin(dip)`` for ``p = (g6, b3, d3, dip)``."""
     G = sym_from_vec(p[:6])
     h = _unit((raw_means - p[6:9]) @ G)
-    R = Rotation.from_rotvec(p[9:12]).as_matrix() @ R0
+    R = _rotation(p[9:12]) @ R0
     return np.einsum("ki,ij,kj->k", u, R, h) + np.sin(p[12])
 
 
@@ -378,8 +377,10 @@ def _sequential(fit: EllipsoidFit, R0: np.ndarray, dip0: float, raw_means: np.nd
 
     q = np.r_[np.zeros(3), dip0]
     for _ in range(2):  # the second pass starts at d = 0 about the first's rotation
+        from scipy.optimize import least_squares  # imported where a fit runs (bench/startup.md)
+
         q = least_squares(rb, q, args=(R,), method="lm").x
-        R = Rotation.from_rotvec(q[:3]).as_matrix() @ R
+        R = _rotation(q[:3]) @ R
         q[:3] = 0.0
     p = np.r_[g, q]
     # the parameters' natural scales, for the finite differences
@@ -420,7 +421,7 @@ def _headings(p: np.ndarray, R0: np.ndarray, raw_means: np.ndarray, u: np.ndarra
     frame: its horizontal part (normal to ``u``) against the horizontal part of the
     accelerometer's x axis (its y axis where x points nearly up)."""
     G = sym_from_vec(p[:6])
-    R = Rotation.from_rotvec(p[9:12]).as_matrix() @ R0
+    R = _rotation(p[9:12]) @ R0
     m = ((raw_means - p[6:9]) @ G) @ R.T
     ref = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     e1 = _unit(ref - np.sum(ref * u, axis=1, keepdims=True) * u)
@@ -621,3 +622,8 @@ def _full_mask(finite: np.ndarray, keep: np.ndarray) -> np.ndarray:
     out[np.flatnonzero(finite)[keep]] = True
     return out
 
+
+def _rotation(v: np.ndarray) -> np.ndarray:
+    """The rotation matrix of a rotation vector (scipy's Rotation would cost every run the
+    import of scipy.spatial)."""
+    return quat.to_matrix(quat.from_rotvec(np.asarray(v, float)))
