@@ -1,0 +1,146 @@
+"""What the still moments of use say about the stored calibration's parameters (method.md
+§11): the gyroscope's bias from M13's rates at rest, the accelerometer's biases and scales by
+M14 on the axes the moments cover, each pulled towards its stored value by a prior."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from imucal.inuse.moments import Moments
+from imucal.models import SensorModel
+
+# An axis' bias and scale are told apart only with moments on both sides of it (GGIR's rule).
+COVERAGE_G = 0.3
+# The priors' widths (method.md §11, M14): wide next to what minutes of moments determine.
+PRIOR_ACC_BIAS_G = 0.05
+PRIOR_ACC_SCALE = 0.02
+PRIOR_GYRO_BIAS_DEG_S = 1.0
+AXES = "xyz"
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One parameter as stored and as the moments put it, in the calibration's raw units."""
+
+    sensor: str  # "accelerometer" or "gyroscope"
+    parameter: str  # "b_x", "s_y", ... (the calibration file's names)
+    stored: float
+    value: float
+    std_error: float
+    unit: str
+
+    @property
+    def change(self) -> float:
+        return self.value - self.stored
+
+    def to_dict(self) -> dict:
+        return {"sensor": self.sensor, "parameter": self.parameter, "stored": self.stored,
+                "value": self.value, "change": self.change, "std_error": self.std_error,
+                "unit": self.unit}
+
+
+@dataclass(frozen=True)
+class GyroBias:
+    """The rate at rest the stored calibration leaves (calibrated frame, rad/s), pooled over
+    the moments (no prior: the check's figure), and the refreshed raw bias (with the prior)."""
+
+    rate: np.ndarray  # (3,) rad/s
+    rate_se: np.ndarray  # (3,) rad/s
+    still_s: float  # seconds of moments behind it
+    estimates: tuple[Estimate, ...]  # b_x, b_y, b_z refreshed (prior included)
+
+
+def coverage(moments: Moments, g: float) -> np.ndarray:
+    """(3,) bool: the axes along which some moment reads >= 0.3 g and some <= -0.3 g."""
+    if moments.count == 0:
+        return np.zeros(3, bool)
+    u = moments.cal_mean / g
+    return (u >= COVERAGE_G).any(axis=0) & (u <= -COVERAGE_G).any(axis=0)
+
+
+def gyro_bias(model: SensorModel, moments: Moments, gyro_unit: str) -> GyroBias | None:
+    """M13's rates pooled by inverse variance, per axis; the standard error widened by the
+    moments' scatter about the pooled value where it exceeds their own (reduced chi-square >
+    1). The refreshed raw bias: the same with the prior of PRIOR_GYRO_BIAS_DEG_S, carried
+    through ``(T_g K_g)^-1`` (M4)."""
+    if moments.rate is None or moments.count == 0:
+        return None
+    r, se = moments.rate, np.maximum(moments.rate_se, 1e-12)
+    w = 1.0 / se**2
+    pooled = (w * r).sum(axis=0) / w.sum(axis=0)
+    widen = np.ones(3)
+    if moments.count >= 2:
+        chi2 = (w * (r - pooled) ** 2).sum(axis=0) / (moments.count - 1)
+        widen = np.sqrt(np.maximum(chi2, 1.0))
+    rate_se = widen / np.sqrt(w.sum(axis=0))
+    w0 = 1.0 / np.radians(PRIOR_GYRO_BIAS_DEG_S) ** 2  # prior: the stored bias, i.e. rate 0
+    post = (w * r).sum(axis=0) / (w.sum(axis=0) + w0)
+    post_se = widen / np.sqrt(w.sum(axis=0) + w0)
+    inv = np.linalg.inv(model.matrix)  # calibrated rate -> raw units (M4)
+    delta = inv @ post
+    cov = inv @ np.diag(post_se**2) @ inv.T
+    est = tuple(Estimate("gyroscope", f"b_{a}", float(model.b[i]), float(model.b[i] + delta[i]),
+                         float(np.sqrt(cov[i, i])), gyro_unit) for i, a in enumerate(AXES))
+    return GyroBias(rate=pooled, rate_se=rate_se, still_s=float(moments.durations.sum()),
+                    estimates=est)
+
+
+@dataclass(frozen=True)
+class AccFit:
+    """M14's solution: the parameters refreshed (covered axes' bias and scale), the axes left
+    as stored, and the still-norm errors before and after (g)."""
+
+    estimates: tuple[Estimate, ...]
+    covered: np.ndarray  # (3,) bool
+    model: SensorModel  # the stored model with the refreshed parameters
+    errors_before: np.ndarray  # (B,) M12 with the stored model
+    errors_after: np.ndarray  # (B,) M12 with the refreshed one
+
+
+def norm_errors(model: SensorModel, raw_mean: np.ndarray, g: float) -> np.ndarray:
+    """M12 for each moment: ``|T K (m_k - b)| - |g|``."""
+    return np.linalg.norm(model.apply(raw_mean), axis=1) - g
+
+
+def fit_acc(model: SensorModel, moments: Moments, g: float, stored_norm: float,
+            acc_unit: str) -> AccFit:
+    """M14 over the biases and scales of the covered axes (none: the stored model back).
+    ``stored_norm`` is S, the stored held-out still-norm error in the calibrated unit."""
+    covered = coverage(moments, g)
+    before = norm_errors(model, moments.raw_mean, g)
+    axes = np.flatnonzero(covered)
+    if len(axes) == 0:
+        return AccFit((), covered, model, before, before)
+    sigma = np.sqrt(stored_norm**2 + moments.norm_var)
+    K0, b0 = np.asarray(model.K, float), np.asarray(model.b, float)
+    p_b = PRIOR_ACC_BIAS_G * g / np.abs(K0[axes])  # raw units of one g's fraction, per axis
+    p_s = PRIOR_ACC_SCALE * np.abs(K0[axes])
+
+    def build(x: np.ndarray) -> SensorModel:
+        K, b = K0.copy(), b0.copy()
+        b[axes] = x[:len(axes)]
+        K[axes] = x[len(axes):]
+        return SensorModel(T=model.T, K=K, b=b)
+
+    def residuals(x: np.ndarray) -> np.ndarray:  # M14
+        data = norm_errors(build(x), moments.raw_mean, g) / sigma
+        prior = np.r_[(x[:len(axes)] - b0[axes]) / p_b, (x[len(axes):] - K0[axes]) / p_s]
+        return np.r_[data, prior]
+
+    x0 = np.r_[b0[axes], K0[axes]]
+    sol = least_squares(residuals, x0, x_scale=np.r_[p_b, p_s], method="trf")
+    J = sol.jac
+    dof = moments.count - len(x0)
+    chi2 = float(np.sum(sol.fun[:moments.count] ** 2) / dof) if dof > 0 else 1.0
+    cov = np.linalg.pinv(J.T @ J) * max(chi2, 1.0)
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    names = [f"b_{AXES[i]}" for i in axes] + [f"s_{AXES[i]}" for i in axes]
+    stored = np.r_[b0[axes], K0[axes]]
+    est = tuple(Estimate("accelerometer", n, float(s), float(v), float(e), acc_unit if
+                         n.startswith("b") else "1")
+                for n, s, v, e in zip(names, stored, sol.x, se))
+    new = build(sol.x)
+    return AccFit(est, covered, new, before, norm_errors(new, moments.raw_mean, g))
