@@ -32,10 +32,11 @@ DEFAULT_NORM_MG = 1.0  # S when the calibration stores no still-norm figure
 @dataclass(frozen=True)
 class Stored:
     """What the calibration file says besides its parameters: its held-out still-norm error
-    (mg, §5) and the accelerometer's white noise per sample and axis (calibrated unit)."""
+    (mg, §5) and the accelerometer's white noise density (calibrated unit per sqrt(Hz), A1),
+    which at the recording's rate gives the noise per sample: ``sigma = N sqrt(rate)``."""
 
     static_norm_mg: float | None = None
-    acc_noise: float | None = None
+    acc_noise_density: float | None = None
 
 
 @dataclass(frozen=True)
@@ -110,9 +111,12 @@ def moments_of(cal: Calibration, stored: Stored, session: Session
     gyro_cal = t_gyro = None
     if session.has_gyro and seg.gyro is not None:
         gyro_cal, t_gyro = seg.gyro.apply(np.asarray(session.gyro, float)), session.t_gyro
+    sigma = None
+    if stored.acc_noise_density is not None:
+        sigma = stored.acc_noise_density * float(np.sqrt(session.acc_rate))
     moments = find_moments(np.asarray(session.acc, float), acc_cal, np.asarray(session.t_acc),
-                           gyro_cal, t_gyro, cal.g, stored.acc_noise, session.acc_rate)
-    if stored.acc_noise is None:
+                           gyro_cal, t_gyro, cal.g, sigma, session.acc_rate)
+    if sigma is None:
         notes += ("the calibration stores no noise figures: the detector's level came from "
                   "the quietest 1 % of the recording",)
     return moments, seg, number, notes

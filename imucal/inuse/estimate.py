@@ -140,7 +140,7 @@ def fit_acc(model: SensorModel, moments: Moments, g: float, stored_norm: float,
     names = [f"b_{AXES[i]}" for i in axes] + [f"s_{AXES[i]}" for i in axes]
     stored = np.r_[b0[axes], K0[axes]]
     est = tuple(Estimate("accelerometer", n, float(s), float(v), float(e), acc_unit if
-                         n.startswith("b") else "1")
+                         n.startswith("b") else "ratio")
                 for n, s, v, e in zip(names, stored, sol.x, se))
     new = build(sol.x)
     return AccFit(est, covered, new, before, norm_errors(new, moments.raw_mean, g))
