@@ -97,7 +97,7 @@ def make_everyday(activity: str = "walk", minutes: float = 10.0, seed: int = 0,
 
     ``tapping`` is the fraction of the hand-held rests spent being tapped instead (a burst of
     taps 0.3-1.2 s apart: the device is still but for the taps, and no moment may come of it);
-    on the desk, the rests are cut by typing (1-4 s of 30 Hz vibration, 10-30 mg) and a tap or
+    on the desk, the rests are cut by typing (1-4 s of 30 Hz vibration, 20-40 mg) and a tap or
     two. ``sway_deg`` is the amplitude of the sway's tilt about each horizontal axis."""
     if activity not in _PLAN:
         raise ValueError(f"activity must be one of {ACTIVITIES}, got {activity!r}")
@@ -280,13 +280,13 @@ def _add_taps(rng: np.random.Generator, t: np.ndarray, acc: np.ndarray, w: np.nd
 
 def _add_typing(rng: np.random.Generator, t: np.ndarray, q: np.ndarray, acc: np.ndarray,
                 disturbed: np.ndarray) -> np.ndarray:
-    """30 Hz vibration of the desk (vertical, 10-30 mg) over each typing burst."""
+    """30 Hz vibration of the desk (vertical, 20-40 mg) over each typing burst."""
     long = disturbed[disturbed[:, 1] - disturbed[:, 0] > 2 * TAP_S]
     if len(long) == 0:
         return acc
     k = np.searchsorted(long[:, 0], t, side="right") - 1
     on = (k >= 0) & (t < long[np.maximum(k, 0), 1])
-    amp = rng.uniform(0.01, 0.03, len(long))
+    amp = rng.uniform(0.02, 0.04, len(long))
     vert = amp[k[on]] * np.sin(2 * np.pi * 30.0 * t[on])
     acc = acc.copy()
     acc[on] += quat.rotate_inverse(q[on], np.array([0.0, 0.0, 1.0])) * vert[:, None]
