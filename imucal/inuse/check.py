@@ -13,7 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from imucal.inuse.estimate import AccFit, Estimate, GyroBias, fit_acc, gyro_bias
+from imucal.inuse.estimate import (
+    MIN_ACC_MOMENTS,
+    AccFit,
+    Estimate,
+    GyroBias,
+    fit_acc,
+    gyro_bias,
+)
 from imucal.inuse.moments import Moments, find_moments
 from imucal.session import Session
 from imucal.stages.apply import Calibration, SegmentModels
@@ -21,7 +28,6 @@ from imucal.stages.apply import Calibration, SegmentModels
 HOLDS, DRIFTED, CANNOT_TELL, NOT_CHECKED = "holds", "drifted", "cannot tell", "not checked"
 EXIT_CODES = {HOLDS: 0, DRIFTED: 1, CANNOT_TELL: 2}
 ACC_LIMIT_MG = 2.0  # the verdict's caveat level for the held-out still-norm error
-MIN_ACC_MOMENTS = 6
 MIN_ACC_ORIENTATIONS = 3
 GYRO_LIMIT_DEG_S = 0.1  # 6 deg of heading a minute
 MIN_GYRO_STILL_S = 3.0

@@ -14,6 +14,9 @@ from imucal.models import SensorModel
 
 # An axis' bias and scale are told apart only with moments on both sides of it (GGIR's rule).
 COVERAGE_G = 0.3
+# Fewer moments than this refresh no accelerometer parameter: two moments on either side of an
+# axis fit its bias and scale exactly, with nothing left to tell a moment's error from drift.
+MIN_ACC_MOMENTS = 6
 # The priors' widths (method.md §11, M14): wide next to what minutes of moments determine.
 PRIOR_ACC_BIAS_G = 0.05
 PRIOR_ACC_SCALE = 0.02
@@ -107,9 +110,10 @@ def norm_errors(model: SensorModel, raw_mean: np.ndarray, g: float) -> np.ndarra
 
 def fit_acc(model: SensorModel, moments: Moments, g: float, stored_norm: float,
             acc_unit: str) -> AccFit:
-    """M14 over the biases and scales of the covered axes (none: the stored model back).
+    """M14 over the biases and scales of the covered axes (none, or fewer than
+    MIN_ACC_MOMENTS moments: the stored model back).
     ``stored_norm`` is S, the stored held-out still-norm error in the calibrated unit."""
-    covered = coverage(moments, g)
+    covered = coverage(moments, g) & (moments.count >= MIN_ACC_MOMENTS)
     before = norm_errors(model, moments.raw_mean, g)
     axes = np.flatnonzero(covered)
     if len(axes) == 0:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imucal.inuse.check import MIN_GYRO_STILL_S, Check, Stored, check
-from imucal.inuse.estimate import AXES, COVERAGE_G, Estimate
+from imucal.inuse.estimate import AXES, COVERAGE_G, MIN_ACC_MOMENTS, Estimate
 from imucal.models import SensorModel
 from imucal.session import Session
 from imucal.stages.apply import Calibration
@@ -55,9 +55,13 @@ def refresh(cal: Calibration, stored: Stored, session: Session) -> Refresh:
     if fit is not None and fit.estimates:
         acc = fit.model
         changed += fit.estimates
-    for i in np.flatnonzero(~covered):
-        kept.append(f"accelerometer b_{AXES[i]}, s_{AXES[i]}: no moments at {COVERAGE_G:g} g on "
-                    f"both sides of {AXES[i]}")
+    if c.moments.count < MIN_ACC_MOMENTS:
+        kept.append(f"accelerometer biases and scales: {c.moments.count} still moments, "
+                    f"{MIN_ACC_MOMENTS} needed")
+    else:
+        for i in np.flatnonzero(~covered):
+            kept.append(f"accelerometer b_{AXES[i]}, s_{AXES[i]}: no moments at {COVERAGE_G:g} g "
+                        f"on both sides of {AXES[i]}")
     kept.append("accelerometer misalignments: not refreshed from everyday use")
     gyro = seg.gyro
     if gyro is not None:
