@@ -93,14 +93,17 @@ def gyro_bias(model: SensorModel, moments: Moments, gyro_unit: str) -> GyroBias 
 
 @dataclass(frozen=True)
 class AccFit:
-    """M14's solution: the parameters refreshed (covered axes' bias and scale), the axes left
-    as stored, and the still-norm errors before and after (g)."""
+    """M14's solution: the parameters refreshed, the axes covered, and the still-norm errors
+    before and after (g); which set of parameters was refreshed and why (held out)."""
 
     estimates: tuple[Estimate, ...]
     covered: np.ndarray  # (3,) bool
     model: SensorModel  # the stored model with the refreshed parameters
     errors_before: np.ndarray  # (B,) M12 with the stored model
     errors_after: np.ndarray  # (B,) M12 with the refreshed one
+    choice: str = "none"  # "none", "bias" or "bias and scale"
+    held_out_mg: dict | None = None  # each choice's held-out still-norm RMS, mg
+    reason: str = ""
 
 
 def norm_errors(model: SensorModel, raw_mean: np.ndarray, g: float) -> np.ndarray:
@@ -108,43 +111,77 @@ def norm_errors(model: SensorModel, raw_mean: np.ndarray, g: float) -> np.ndarra
     return np.linalg.norm(model.apply(raw_mean), axis=1) - g
 
 
+FOLDS = 10
+CHOICES = ("none", "bias", "bias and scale")
+
+
 def fit_acc(model: SensorModel, moments: Moments, g: float, stored_norm: float,
             acc_unit: str) -> AccFit:
-    """M14 over the biases and scales of the covered axes (none, or fewer than
-    MIN_ACC_MOMENTS moments: the stored model back).
-    ``stored_norm`` is S, the stored held-out still-norm error in the calibrated unit."""
+    """M14 over the covered axes' biases, or their biases and scales, whichever predicts the
+    still moments it did not see best (K-fold over the moments in time order, as §5 judges a
+    calibration by what it did not fit); none when neither beats the stored calibration on
+    them (a misalignment or a change of shape that biases and scales cannot follow would be
+    fitted to the orientations visited and miss the others). None either without a covered
+    axis or with fewer than MIN_ACC_MOMENTS moments. ``stored_norm`` is S, the stored held-out
+    still-norm error in the calibrated unit."""
     covered = coverage(moments, g) & (moments.count >= MIN_ACC_MOMENTS)
     before = norm_errors(model, moments.raw_mean, g)
     axes = np.flatnonzero(covered)
     if len(axes) == 0:
-        return AccFit((), covered, model, before, before)
+        return AccFit((), covered, model, before, before, reason="no axis covered")
     sigma = np.sqrt(stored_norm**2 + moments.norm_var)
+    mg = 1e3 / g
+    folds = np.array_split(np.arange(moments.count), min(FOLDS, moments.count))
+    held = {"none": float(np.sqrt(np.mean(before**2))) * mg}
+    for choice in CHOICES[1:]:
+        e = np.empty(moments.count)
+        for test in folds:
+            train = np.setdiff1d(np.arange(moments.count), test)
+            x, _, build = _solve(model, moments, g, sigma, axes, choice == CHOICES[2], train)
+            e[test] = norm_errors(build(x), moments.raw_mean[test], g)
+        held[choice] = float(np.sqrt(np.mean(e**2))) * mg
+    choice = min(CHOICES, key=lambda c: (held[c], CHOICES.index(c)))
+    shown = ", ".join(f"{c} {v:.2f} mg" for c, v in held.items())
+    reason = f"held-out still-norm RMS refreshing {shown}: {choice} refreshed"
+    if choice == "none":
+        return AccFit((), covered, model, before, before, choice, held, reason)
+    scale = choice == CHOICES[2]
+    x, cov, build = _solve(model, moments, g, sigma, axes, scale, np.arange(moments.count))
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    names = [f"b_{AXES[i]}" for i in axes] + ([f"s_{AXES[i]}" for i in axes] if scale else [])
+    stored = np.r_[model.b[axes], model.K[axes] if scale else []]
+    est = tuple(Estimate("accelerometer", n, float(s), float(v), float(e), acc_unit if
+                         n.startswith("b") else "ratio")
+                for n, s, v, e in zip(names, stored, x, se))
+    new = build(x)
+    return AccFit(est, covered, new, before, norm_errors(new, moments.raw_mean, g), choice,
+                  held, reason)
+
+
+def _solve(model: SensorModel, moments: Moments, g: float, sigma: np.ndarray, axes: np.ndarray,
+           scale: bool, use: np.ndarray):
+    """M14 on the moments ``use``: the solution, its covariance (scaled by the reduced
+    chi-square where above 1) and the model it builds."""
     K0, b0 = np.asarray(model.K, float), np.asarray(model.b, float)
-    p_b = PRIOR_ACC_BIAS_G * g / np.abs(K0[axes])  # raw units of one g's fraction, per axis
-    p_s = PRIOR_ACC_SCALE * np.abs(K0[axes])
+    n = len(axes)
+    p = np.r_[PRIOR_ACC_BIAS_G * g / np.abs(K0[axes]),  # a bias's prior, raw units
+              PRIOR_ACC_SCALE * np.abs(K0[axes]) if scale else []]
+    x0 = np.r_[b0[axes], K0[axes] if scale else []]
+    m = moments.raw_mean[use]
+    w = 1.0 / sigma[use]
 
     def build(x: np.ndarray) -> SensorModel:
         K, b = K0.copy(), b0.copy()
-        b[axes] = x[:len(axes)]
-        K[axes] = x[len(axes):]
+        b[axes] = x[:n]
+        if scale:
+            K[axes] = x[n:]
         return SensorModel(T=model.T, K=K, b=b)
 
     def residuals(x: np.ndarray) -> np.ndarray:  # M14
-        data = norm_errors(build(x), moments.raw_mean, g) / sigma
-        prior = np.r_[(x[:len(axes)] - b0[axes]) / p_b, (x[len(axes):] - K0[axes]) / p_s]
-        return np.r_[data, prior]
+        return np.r_[norm_errors(build(x), m, g) * w, (x - x0) / p]
 
-    x0 = np.r_[b0[axes], K0[axes]]
-    sol = least_squares(residuals, x0, x_scale=np.r_[p_b, p_s], method="trf")
-    J = sol.jac
-    dof = moments.count - len(x0)
-    chi2 = float(np.sum(sol.fun[:moments.count] ** 2) / dof) if dof > 0 else 1.0
-    cov = np.linalg.pinv(J.T @ J) * max(chi2, 1.0)
-    se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    names = [f"b_{AXES[i]}" for i in axes] + [f"s_{AXES[i]}" for i in axes]
-    stored = np.r_[b0[axes], K0[axes]]
-    est = tuple(Estimate("accelerometer", n, float(s), float(v), float(e), acc_unit if
-                         n.startswith("b") else "ratio")
-                for n, s, v, e in zip(names, stored, sol.x, se))
-    new = build(sol.x)
-    return AccFit(est, covered, new, before, norm_errors(new, moments.raw_mean, g))
+    sol = least_squares(residuals, x0, x_scale=p, method="trf")
+    dof = len(use) - len(x0)
+    chi2 = float(np.sum(sol.fun[:len(use)] ** 2) / dof) if dof > 0 else 1.0
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac) * max(chi2, 1.0)
+    return sol.x, cov, build

@@ -37,6 +37,10 @@ class Refresh:
         return {"changed": [c.to_dict() for c in self.changed], "kept": list(self.kept),
                 "still_norm_rms_mg": {"stored": self.norm_before_mg,
                                       "refreshed": self.norm_after_mg},
+                "accelerometer_choice": None if self.check.acc_fit is None else {
+                    "refreshed": self.check.acc_fit.choice,
+                    "held_out_still_norm_rms_mg": self.check.acc_fit.held_out_mg,
+                    "reason": self.check.acc_fit.reason},
                 "still_moments": self.check.moments.count,
                 "still_seconds": float(self.check.moments.durations.sum())
                 if self.check.moments.count else 0.0,
@@ -55,6 +59,10 @@ def refresh(cal: Calibration, stored: Stored, session: Session) -> Refresh:
     if fit is not None and fit.estimates:
         acc = fit.model
         changed += fit.estimates
+    if fit is not None and fit.choice == "none" and fit.held_out_mg is not None:
+        kept.append(f"accelerometer biases and scales: {fit.reason}")
+    elif fit is not None and fit.choice == "bias":
+        kept.append(f"accelerometer scales: {fit.reason}")
     if c.moments.count < MIN_ACC_MOMENTS:
         kept.append(f"accelerometer biases and scales: {c.moments.count} still moments, "
                     f"{MIN_ACC_MOMENTS} needed")
