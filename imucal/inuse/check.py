@@ -94,9 +94,15 @@ class Check:
                     "seconds": float(m.durations.sum()) if m.count else 0.0,
                     "times": m.times.tolist(),
                     "detector": {"window": m.window, "min_len": m.min_len, "k": m.k,
-                                 "threshold": m.threshold, "reference_level": m.level,
+                                 "threshold": _finite(m.threshold),
+                                 "reference_level": _finite(m.level),
                                  "reference_from": m.level_from, "rejected": m.rejected}},
                 "notes": list(self.notes)}
+
+
+def _finite(x: float) -> float | None:
+    """JSON has no NaN: a figure not computed is null."""
+    return float(x) if np.isfinite(x) else None
 
 
 def last_segment(cal: Calibration) -> tuple[SegmentModels, int, tuple[str, ...]]:

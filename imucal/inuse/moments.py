@@ -25,6 +25,7 @@ K_INUSE = 9.0
 QUIET_QUANTILE = 0.01  # no stored noise: the quietest 1 % of the windows give the level
 MAX_RATE_DEG_S = 3.0  # x-io Fusion's: a steady turn about gravity leaves the accelerometer still
 MAX_NORM_OFF = 0.10  # a moment's mean norm within 10 % of |g|
+MIN_MOMENT_SAMPLES = 10  # whatever the rate: a mean and a scatter need a few samples
 EDGE_S = 0.5  # the ends of a moment whose gravity directions give its tilt (M13)
 EMPTY = np.zeros(0, np.int64)
 
@@ -68,7 +69,9 @@ def find_moments(acc_raw: np.ndarray, acc_cal: np.ndarray, t_acc: np.ndarray,
     ``acc_cal`` (and gyroscope ``gyro_cal``, rad/s), ``noise_sigma`` the accelerometer's white
     noise per sample and axis in the calibrated unit (None: not stored)."""
     window = max(3, int(round(WINDOW_S * rate)) | 1)
-    min_len = max(window, int(round(MIN_MOMENT_S * rate)))  # after the ends' trim
+    min_len = max(window, MIN_MOMENT_SAMPLES, int(round(MIN_MOMENT_S * rate)))  # after trim
+    if len(acc_cal) < min_len + window:  # too short to hold one moment (a 6-sample log)
+        return _none(window, min_len, gyro_cal is not None and t_gyro is not None)
     # No outlier replacement (as §1 does): a tap lasts a sample or two and must end a moment.
     stat = Statistic(CleanRows(acc_cal, EMPTY), window)
     if noise_sigma is not None and noise_sigma > 0:
@@ -112,6 +115,16 @@ def find_moments(acc_raw: np.ndarray, acc_cal: np.ndarray, t_acc: np.ndarray,
                    min_len=min_len, k=K_INUSE, threshold=threshold, level=level,
                    level_from=level_from, rejected={k: v for k, v in rejected.items() if v},
                    orientations=distinct_orientations(cal_mean) if len(runs) else 0)
+
+
+def _none(window: int, min_len: int, gyro: bool) -> Moments:
+    z3, z = np.zeros((0, 3)), np.zeros(0)
+    return Moments(blocks=np.zeros((0, 2), np.int64), times=np.zeros((0, 2)),
+                   n=np.zeros(0, np.int64), raw_mean=z3, cal_mean=z3, norm_var=z,
+                   rate=z3 if gyro else None, rate_se=z3 if gyro else None, window=window,
+                   min_len=min_len, k=K_INUSE, threshold=float("nan"), level=float("nan"),
+                   level_from="none: the recording is shorter than one moment", rejected={},
+                   orientations=0)
 
 
 def _unit(g: float) -> str:

@@ -189,3 +189,17 @@ def test_the_broad_tapping_trial_gives_no_moment_while_it_moves(shared_data):
     assert m.count >= 2  # the two still phases, 44 s and 36 s
     for a, b in m.blocks:
         assert not moving[a:b].any()
+
+
+def test_a_recording_shorter_than_a_moment_cannot_tell():
+    """A log of a few samples (the shared PX4 sample holds 6 at 1 Hz) has no moment: cannot
+    tell, not an error."""
+    session, truth = make_everyday("walk", minutes=1, seed=0)
+    tiny = type(session)(acc=session.acc[:6], t_acc=session.t_acc[:6],
+                         gyro=session.gyro[:6], t_gyro=session.t_gyro[:6])
+    c = check(stored_calibration(truth), STORED, tiny)
+    assert c.level == CANNOT_TELL and c.moments.count == 0
+    assert "too few still moments (0" in c.reason
+    import json
+
+    json.dumps(c.to_dict(), allow_nan=False)  # --json: no NaN in the figures
