@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import imucal
-from imucal.inuse.check import DRIFTED, HOLDS, check
+from imucal.inuse.check import DRIFTED, HOLDS, Stored, check
 from imucal.inuse.refresh import refresh
 from imucal.io.inuse_file import read_for_check
 from imucal.stages.apply import Calibration
@@ -68,3 +68,49 @@ def test_refreshed_on_one_half_it_holds_on_the_other(units):
     assert np.array_equal(fresh.acc.T, cal.segments[-1].acc.T)
     assert np.array_equal(fresh.gyro.T, cal.segments[-1].gyro.T)
     assert np.array_equal(fresh.gyro.K, cal.segments[-1].gyro.K)
+
+
+def test_a_bias_refreshed_from_the_breaks_of_a_broad_trial_agrees_with_the_optical_reference(
+        shared_data):
+    """BROAD trial 05: slow rotations with still breaks, between still phases. The bias
+    refreshed from the movement phase alone (its breaks are the only moments there) agrees with
+    the still phases' mean rate within 0.01 deg/s, and the rate integrated with it over 10 s
+    windows of the motion ends as far from the optical reference's rotation as with theirs
+    (0.46 against 0.45 deg median; 2.96 deg with no bias removed)."""
+    import h5py
+
+    from imucal.models import SensorModel
+    from imucal.numerics import quaternion as quat
+    from imucal.numerics.rk4.intervals import integrate_transitions
+    from imucal.stages.apply import SegmentModels
+
+    path = shared_data / "broad" / "05_undisturbed_slow_rotation_with_breaks_B.hdf5"
+    s = imucal.load_session(path)
+    with h5py.File(path) as f:
+        moving = np.asarray(f["movement"]).ravel().astype(bool)
+        q_opt = np.asarray(f["opt_quat"])
+    idx = np.flatnonzero(moving)
+    a, b = idx[0], idx[-1] + 1
+    ident = SensorModel(T=np.eye(3), K=np.ones(3), b=np.zeros(3))
+    cal = Calibration(segments=(SegmentModels(0.0, 0.0, ident, ident),), acc_unit_raw="m/s^2",
+                      acc_unit="m/s^2", g=9.80665, gyro_unit_raw="rad/s")
+    motion = dataclasses.replace(s, acc=s.acc[a:b], t_acc=s.t_acc[a:b], gyro=s.gyro[a:b],
+                                 t_gyro=s.t_gyro[a:b])
+    fresh = refresh(cal, Stored(), motion)
+    assert fresh.check.moments.count == 3  # the breaks
+    b_rest = s.gyro[:a].mean(axis=0)  # the still phase before the motion
+    assert np.degrees(np.abs(fresh.gyro.b - b_rest)).max() < 0.01  # measured 0.0047
+    w = int(10 * s.acc_rate)
+    starts = np.arange(a, b - w, w)
+    ends = starts + w
+    ok = np.isfinite(q_opt[starts]).all(axis=1) & np.isfinite(q_opt[ends]).all(axis=1)
+    starts, ends = starts[ok], ends[ok]
+    q_ref = quat.multiply(quat.conjugate(q_opt[starts]), q_opt[ends])
+
+    def error(bias: np.ndarray) -> float:
+        q = integrate_transitions(np.ascontiguousarray(s.gyro - bias), s.t_gyro, starts, ends)
+        turn = quat.to_rotvec(quat.multiply(quat.conjugate(q), q_ref))
+        return float(np.degrees(np.median(np.linalg.norm(turn, axis=1))))
+
+    assert error(np.zeros(3)) > 2.0
+    assert error(fresh.gyro.b) < 0.6 and abs(error(fresh.gyro.b) - error(b_rest)) < 0.05
