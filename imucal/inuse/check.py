@@ -21,7 +21,7 @@ from imucal.inuse.estimate import (
     fit_acc,
     gyro_bias,
 )
-from imucal.inuse.moments import Moments, find_moments
+from imucal.inuse.moments import ModelRows, Moments, find_moments
 from imucal.session import Session
 from imucal.stages.apply import Calibration, SegmentModels
 
@@ -119,14 +119,14 @@ def moments_of(cal: Calibration, stored: Stored, session: Session
     """The still moments of ``session`` under the calibration's last segment."""
     cal.check_units(session)
     seg, number, notes = last_segment(cal)
-    acc_cal = seg.acc.apply(np.asarray(session.acc, float))
+    acc_cal = ModelRows(session.acc, seg.acc)  # calibrated a slice at a time (M2, M4)
     gyro_cal = t_gyro = None
     if session.has_gyro and seg.gyro is not None:
-        gyro_cal, t_gyro = seg.gyro.apply(np.asarray(session.gyro, float)), session.t_gyro
+        gyro_cal, t_gyro = ModelRows(session.gyro, seg.gyro), session.t_gyro
     sigma = None
     if stored.acc_noise_density is not None:
         sigma = stored.acc_noise_density * float(np.sqrt(session.acc_rate))
-    moments = find_moments(np.asarray(session.acc, float), acc_cal, np.asarray(session.t_acc),
+    moments = find_moments(session.acc, acc_cal, np.asarray(session.t_acc),
                            gyro_cal, t_gyro, cal.g, sigma, session.acc_rate)
     if sigma is None:
         notes += ("the calibration stores no noise figures: the detector's level came from "

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imucal.models import SensorModel
 from imucal.numerics.directions import distinct_orientations
 from imucal.numerics.windows import block_means
 from imucal.stages.detect_runs import streamed_still_runs
@@ -28,6 +29,25 @@ MAX_NORM_OFF = 0.10  # a moment's mean norm within 10 % of |g|
 MIN_MOMENT_SAMPLES = 10  # whatever the rate: a mean and a scatter need a few samples
 EDGE_S = 0.5  # the ends of a moment whose gravity directions give its tilt (M13)
 EMPTY = np.zeros(0, np.int64)
+
+
+class ModelRows:
+    """A raw signal seen through a sensor model (M2, M4), row slices at a time: what the
+    detector and the moments read, without a calibrated copy the length of a day's recording
+    (at 100 Hz a day of one triad is 207 MB in float64)."""
+
+    ndim = 2
+    dtype = np.dtype(np.float64)
+
+    def __init__(self, raw, model: SensorModel):
+        self.raw, self.model = raw, model
+        self.shape = (len(raw), int(raw.shape[1]))
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key) -> np.ndarray:
+        return self.model.apply(np.asarray(self.raw[key], dtype=np.float64))
 
 
 @dataclass(frozen=True)
@@ -62,12 +82,12 @@ class Moments:
         return self.times[:, 1] - self.times[:, 0]
 
 
-def find_moments(acc_raw: np.ndarray, acc_cal: np.ndarray, t_acc: np.ndarray,
-                 gyro_cal: np.ndarray | None, t_gyro: np.ndarray | None, g: float,
-                 noise_sigma: float | None, rate: float) -> Moments:
+def find_moments(acc_raw, acc_cal, t_acc: np.ndarray, gyro_cal, t_gyro: np.ndarray | None,
+                 g: float, noise_sigma: float | None, rate: float) -> Moments:
     """The still moments of a recording (method.md §11), on its calibrated accelerometer
-    ``acc_cal`` (and gyroscope ``gyro_cal``, rad/s), ``noise_sigma`` the accelerometer's white
-    noise per sample and axis in the calibrated unit (None: not stored)."""
+    ``acc_cal`` (and gyroscope ``gyro_cal``, rad/s): arrays, or :class:`ModelRows` read a
+    slice at a time. ``noise_sigma`` is the accelerometer's white noise per sample and axis in
+    the calibrated unit (None: not stored)."""
     window = max(3, int(round(WINDOW_S * rate)) | 1)
     min_len = max(window, MIN_MOMENT_SAMPLES, int(round(MIN_MOMENT_S * rate)))  # after trim
     if len(acc_cal) < min_len + window:  # too short to hold one moment (a 6-sample log)
