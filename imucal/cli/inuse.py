@@ -19,9 +19,11 @@ from imucal.cli.options import (
     input_options,
     load_kwargs,
     pick,
+    positive,
     shared_options,
 )
 from imucal.cli.outputs import Progress, check_inputs, check_outputs
+from imucal.inuse.limits import ACC_LIMIT_MG, GYRO_LIMIT_DEG_S
 
 CHECK_INPUT_OPTIONS = input_options("Check the accelerometer alone.")
 CalibArg = Annotated[Path, typer.Argument(metavar="CALIB.json", show_default=False,
@@ -60,6 +62,14 @@ def check_cmd(
     calibration: CalibArg,
     recording: RecordingArg,
     as_json: Annotated[bool, typer.Option("--json", help="Print the figures as JSON.")] = False,
+    acc_limit: Annotated[float, typer.Option(
+        "--acc-limit", metavar="MG", callback=positive,
+        help="The accelerometer drifted when its still-norm RMS is shown above this (or "
+             "twice what the calibration leads one to expect, if more).")] = ACC_LIMIT_MG,
+    gyro_limit: Annotated[float, typer.Option(
+        "--gyro-limit", metavar="DEG/S", callback=positive,
+        help="The gyroscope drifted when an axis' rate at rest is shown beyond this.")
+    ] = GYRO_LIMIT_DEG_S,
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> int:
@@ -74,7 +84,8 @@ def check_cmd(
     from imucal.inuse.check import check
 
     with progress.stage("finding still moments and judging"):
-        result = check(cal, stored, session)
+        result = check(cal, stored, session, acc_limit_mg=acc_limit,
+                       gyro_limit_deg_s=gyro_limit)
     if as_json:
         import json
 

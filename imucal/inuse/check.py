@@ -21,15 +21,14 @@ from imucal.inuse.estimate import (
     fit_acc,
     gyro_bias,
 )
+from imucal.inuse.limits import ACC_LIMIT_MG, GYRO_LIMIT_DEG_S
 from imucal.inuse.moments import ModelRows, Moments, find_moments
 from imucal.session import Session
 from imucal.stages.apply import Calibration, SegmentModels
 
 HOLDS, DRIFTED, CANNOT_TELL, NOT_CHECKED = "holds", "drifted", "cannot tell", "not checked"
 EXIT_CODES = {HOLDS: 0, DRIFTED: 1, CANNOT_TELL: 2}
-ACC_LIMIT_MG = 2.0  # the verdict's caveat level for the held-out still-norm error
 MIN_ACC_ORIENTATIONS = 3
-GYRO_LIMIT_DEG_S = 0.1  # 6 deg of heading a minute
 MIN_GYRO_STILL_S = 3.0
 Z95 = 1.959963984540054
 DEFAULT_NORM_MG = 1.0  # S when the calibration stores no still-norm figure
@@ -134,8 +133,13 @@ def moments_of(cal: Calibration, stored: Stored, session: Session
     return moments, seg, number, notes
 
 
-def check(cal: Calibration, stored: Stored, session: Session) -> Check:
-    """Judge whether ``cal`` still holds on ``session``, a recording of ordinary use."""
+def check(cal: Calibration, stored: Stored, session: Session, *,
+          acc_limit_mg: float = ACC_LIMIT_MG, gyro_limit_deg_s: float = GYRO_LIMIT_DEG_S
+          ) -> Check:
+    """Judge whether ``cal`` still holds on ``session``, a recording of ordinary use: the
+    accelerometer drifted where its still-norm RMS is shown above ``max(acc_limit_mg, twice
+    the expected)``, the gyroscope where an axis' rate at rest is shown beyond
+    ``gyro_limit_deg_s`` (95 % intervals)."""
     moments, seg, number, notes = moments_of(cal, stored, session)
     g = cal.g
     norm_mg = stored.static_norm_mg
@@ -144,14 +148,14 @@ def check(cal: Calibration, stored: Stored, session: Session) -> Check:
         notes += (f"the calibration stores no still-norm error: {DEFAULT_NORM_MG:g} mg assumed",)
     fit = fit_acc(seg.acc, moments, g, norm_mg * 1e-3 * g, cal.acc_unit_raw) \
         if moments.count else None
-    acc = _acc_part(moments, fit, norm_mg, g)
+    acc = _acc_part(moments, fit, norm_mg, g, acc_limit_mg)
     gb = None
     if seg.gyro is None or not session.has_gyro:
         gyro = Part("gyroscope", NOT_CHECKED, "no gyroscope in the calibration or the "
                     "recording", "rate at rest", None, None, None, None, "deg/s")
     else:
         gb = gyro_bias(seg.gyro, moments, cal.gyro_unit_raw or "rad/s")
-        gyro = _gyro_part(gb)
+        gyro = _gyro_part(gb, gyro_limit_deg_s)
     parts = (acc, gyro)
     judged = [p for p in parts if p.level != NOT_CHECKED]
     drifted = [p for p in judged if p.level == DRIFTED]
@@ -174,7 +178,8 @@ def rms_interval(e: np.ndarray) -> tuple[float, float, float]:
         rms * float(np.sqrt(b / chi2.ppf(0.025, b)))
 
 
-def _acc_part(m: Moments, fit: AccFit | None, norm_mg: float, g: float) -> Part:
+def _acc_part(m: Moments, fit: AccFit | None, norm_mg: float, g: float,
+              floor_mg: float) -> Part:
     """M12's RMS with its interval, against max(2 mg, twice the expected)."""
     if m.count < 2 or fit is None:
         return Part("accelerometer", CANNOT_TELL, f"too few still moments ({m.count}; "
@@ -183,7 +188,7 @@ def _acc_part(m: Moments, fit: AccFit | None, norm_mg: float, g: float) -> Part:
     e = fit.errors_before / g * 1e3
     rms, lo, hi = rms_interval(e)
     expected = float(np.sqrt(norm_mg**2 + np.mean(m.norm_var) / g**2 * 1e6))
-    limit = max(ACC_LIMIT_MG, 2 * expected)
+    limit = max(floor_mg, 2 * expected)
     common = dict(figure="still-norm error RMS over the moments (M12)", value=rms, low=lo,
                   high=hi, limit=limit, unit="mg", expected=expected)
     if lo > limit:
@@ -209,22 +214,22 @@ def _fmt_change(c: Estimate, g: float) -> str:
     return f"{c.change / c.stored * 100:+.3f} % (+-{c.std_error / abs(c.stored) * 100:.2g})"
 
 
-def _gyro_part(gb: GyroBias | None) -> Part:
+def _gyro_part(gb: GyroBias | None, limit: float) -> Part:
     """The rate at rest per axis with its interval; drifted where an interval lies wholly
-    beyond GYRO_LIMIT_DEG_S."""
+    beyond ``limit`` (deg/s)."""
     if gb is None or gb.still_s < MIN_GYRO_STILL_S:
         got = 0.0 if gb is None else gb.still_s
         return Part("gyroscope", CANNOT_TELL, f"too few still moments ({got:.1f} s still in "
                     f"all, {MIN_GYRO_STILL_S:g} s needed)", "rate at rest", None, None, None,
-                    GYRO_LIMIT_DEG_S, "deg/s")
+                    limit, "deg/s")
     r, se = np.degrees(gb.rate), np.degrees(gb.rate_se)
     lo, hi = r - Z95 * se, r + Z95 * se
     per_axis = {a: {"value": float(r[i]), "ci95": [float(lo[i]), float(hi[i])],
                     "std_error": float(se[i])} for i, a in enumerate("xyz")}
-    beyond = (lo > GYRO_LIMIT_DEG_S) | (hi < -GYRO_LIMIT_DEG_S)
+    beyond = (lo > limit) | (hi < -limit)
     norm = float(np.linalg.norm(r))
     common = dict(figure="rate at rest left by the stored bias (M13), norm over the axes",
-                  value=norm, low=None, high=None, limit=GYRO_LIMIT_DEG_S, unit="deg/s",
+                  value=norm, low=None, high=None, limit=limit, unit="deg/s",
                   expected=0.0, per_axis=per_axis)
     shown = ", ".join(f"{a} {r[i]:+.3f} (95 % {lo[i]:+.3f} to {hi[i]:+.3f})"
                       for i, a in enumerate("xyz"))
@@ -233,7 +238,7 @@ def _gyro_part(gb: GyroBias | None) -> Part:
         which = ", ".join(f"{c.parameter} by {c.change:+.4g} {c.unit} (+-{c.std_error:.2g})"
                           for c in moved)
         return Part("gyroscope", DRIFTED, f"bias moved: rate at rest {shown} deg/s, beyond "
-                    f"{GYRO_LIMIT_DEG_S:g} deg/s; {which}", changes=moved, **common)
+                    f"{limit:g} deg/s; {which}", changes=moved, **common)
     return Part("gyroscope", HOLDS, f"rate at rest {shown} deg/s, within "
-                f"{GYRO_LIMIT_DEG_S:g} deg/s over {gb.still_s:.0f} s of still moments",
+                f"{limit:g} deg/s over {gb.still_s:.0f} s of still moments",
                 **common)

@@ -121,3 +121,20 @@ def test_bad_inputs_are_one_line(capsys, tmp_path, walk):
     rc, _, err = run(capsys, "synth", tmp_path / "x.mat", "--activity", "walk",
                      "--drift-gyro-bias", "1,2")
     assert rc == 2 and "X,Y,Z" in err
+
+
+def test_the_limits_are_the_users_to_set(walk, capsys):
+    """A bias moved by 0.4 deg/s is drifted at the default 0.1 deg/s and holds at 1 deg/s;
+    the accelerometer's 8 mg too at a 20 mg limit: the verdict follows the limits given."""
+    rc, out, _ = run(capsys, "check", walk / "walk.mat.calib.json", walk / "walk.mat", "--json",
+                     "--gyro-limit", "1", "--acc-limit", "20")
+    data = json.loads(out)
+    assert rc == 0 and data["verdict"] == "holds"
+    limits = {p["sensor"]: p["limit"] for p in data["parts"]}
+    assert limits == {"accelerometer": 20.0, "gyroscope": 1.0}
+    rc, _, _ = run(capsys, "check", walk / "walk.mat.calib.json", walk / "walk.mat",
+                   "--gyro-limit", "1")
+    assert rc == 1  # the accelerometer's 8 mg is still beyond 2 mg
+    rc, _, err = run(capsys, "check", walk / "walk.mat.calib.json", walk / "walk.mat",
+                     "--gyro-limit", "-1")
+    assert rc == 2 and "positive" in err
