@@ -193,7 +193,7 @@ def _acc_part(m: Moments, fit: AccFit | None, norm_mg: float, g: float,
                   high=hi, limit=limit, unit="mg", expected=expected)
     if lo > limit:
         moved = tuple(c for c in fit.estimates if abs(c.change) > 2 * c.std_error)
-        which = ", ".join(f"{c.parameter} by {_fmt_change(c, g)}" for c in moved) or (
+        which = ", ".join(f"{c.parameter} by {_fmt_change(c)}" for c in moved) or (
             "not which parameter: no axis has moments at 0.3 g on both sides")
         return Part("accelerometer", DRIFTED, f"still-norm error {rms:.2f} mg (95 % {lo:.2f}-"
                     f"{hi:.2f}) above {limit:.2f} mg; {which}", changes=moved, **common)
@@ -208,7 +208,7 @@ def _acc_part(m: Moments, fit: AccFit | None, norm_mg: float, g: float,
                 "orientations", **common)
 
 
-def _fmt_change(c: Estimate, g: float) -> str:
+def _fmt_change(c: Estimate) -> str:
     if c.parameter.startswith("b"):
         return f"{c.change:+.4g} {c.unit} (+-{c.std_error:.2g})"
     return f"{c.change / c.stored * 100:+.3f} % (+-{c.std_error / abs(c.stored) * 100:.2g})"

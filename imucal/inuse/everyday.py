@@ -15,7 +15,7 @@ the truth keeps both, and where the device really lay still.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -152,8 +152,6 @@ def make_everyday(activity: str = "walk", minutes: float = 10.0, seed: int = 0,
 def _on_faces(motion, rng: np.random.Generator):
     """The same rests and turns with each rest on one of the six faces (a random turn about the
     vertical): a desk's orientations."""
-    from dataclasses import replace
-
     faces = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 0], [1, -1, 0, 0], [1, 0, 1, 0],
                       [1, 0, -1, 0]], float)
     faces /= np.linalg.norm(faces, axis=1, keepdims=True)
@@ -192,8 +190,7 @@ def _carrying(motion):
         k = np.clip(np.searchsorted(ends, tt, side="right") - 1, 0, len(ends) - 1)
         a, b = ends[k], starts[k]
         inside = (tt >= a) & (tt < b)
-        ramp = np.minimum(tt - a, b - tt) / min(EDGE_S, 1e9)
-        ramp = np.clip(np.minimum(ramp, (b - a) / 2 / EDGE_S), 0.0, 1.0)
+        ramp = np.clip(np.minimum(tt - a, b - tt) / EDGE_S, 0.0, 1.0)
         s = ramp**3 * (10 - 15 * ramp + 6 * ramp**2)  # minimum jerk, as the turns
         return np.where(inside, s, 0.0)
 
