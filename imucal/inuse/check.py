@@ -194,7 +194,7 @@ def _acc_part(m: Moments, fit: AccFit | None, norm_mg: float, g: float,
     if lo > limit:
         moved = tuple(c for c in fit.estimates if abs(c.change) > 2 * c.std_error)
         which = ", ".join(f"{c.parameter} by {_fmt_change(c)}" for c in moved) or (
-            "not which parameter: no axis has moments at 0.3 g on both sides")
+            f"not which parameter: {_untold(m, fit)}")
         return Part("accelerometer", DRIFTED, f"still-norm error {rms:.2f} mg (95 % {lo:.2f}-"
                     f"{hi:.2f}) above {limit:.2f} mg; {which}", changes=moved, **common)
     if m.count < MIN_ACC_MOMENTS or m.orientations < MIN_ACC_ORIENTATIONS:
@@ -206,6 +206,18 @@ def _acc_part(m: Moments, fit: AccFit | None, norm_mg: float, g: float,
     return Part("accelerometer", HOLDS, f"still-norm error {rms:.2f} mg (95 % {lo:.2f}-"
                 f"{hi:.2f}) within {limit:.2f} mg over {m.count} moments in {m.orientations} "
                 "orientations", **common)
+
+
+def _untold(m: Moments, fit: AccFit) -> str:
+    """Why a drifted accelerometer's moved parameters cannot be named."""
+    if m.count < MIN_ACC_MOMENTS:
+        return f"{m.count} still moments, {MIN_ACC_MOMENTS} needed"
+    if not fit.covered.any():
+        return "no axis has moments at 0.3 g on both sides"
+    if fit.choice == "none":
+        return ("no change of bias or scale predicts the moments better than the stored "
+                "calibration (held out): recalibrate")
+    return "no parameter moved beyond twice its standard error"
 
 
 def _fmt_change(c: Estimate) -> str:

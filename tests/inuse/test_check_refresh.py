@@ -256,3 +256,28 @@ def test_a_calibration_of_several_segments_is_checked_and_refreshed_by_its_last(
     assert seg["t_start"] == 20.0 and seg["gyroscope"]["T"] == data["segments"][1]["gyroscope"]["T"]
     np.testing.assert_allclose(seg["gyroscope"]["b"], truth.gyro.b, atol=np.radians(0.05))
     assert data["segments"][1]["gyroscope"]["b"] == truth.stored_gyro.b.tolist()  # not touched
+
+
+def test_a_drift_no_bias_or_scale_explains_is_said_so():
+    """A misalignment that moved (a knock that tilted the accelerometer's z axis by 1 deg
+    towards x) reads as drifted; refreshing biases and scales would not predict held-out
+    moments better, so none is named or refreshed and the check says to recalibrate."""
+    from imucal.models import acc_T
+
+    session, truth = make_everyday("jumps", minutes=10, seed=8)
+    tilted = SensorModel(T=acc_T(np.r_[0.0, np.radians(1.0), 0.0, 1, 1, 1, 0, 0, 0])
+                         @ truth.stored_acc.T, K=truth.stored_acc.K, b=truth.stored_acc.b)
+    raw = tilted.invert(truth.acc.apply(session.acc))  # the same motion, the new sensor
+    import dataclasses
+
+    tilted_session = dataclasses.replace(session, acc=raw)
+    c = check(stored_calibration(truth), STORED, tilted_session)
+    acc = c.parts[0]
+    assert acc.level == DRIFTED and acc.value > 3.0, acc.reason  # measured 4.3 mg
+    assert c.acc_fit.covered.all() and c.acc_fit.choice == "none"
+    held = c.acc_fit.held_out_mg  # measured: none 4.3, bias 4.8, bias and scale 4.9 mg
+    assert held["none"] < min(held["bias"], held["bias and scale"])
+    assert acc.changes == () and acc.reason.endswith("(held out): recalibrate")
+    r = refresh(stored_calibration(truth), STORED, tilted_session)
+    assert not any(e.sensor == "accelerometer" for e in r.changed)
+    assert any(k.startswith("accelerometer biases and scales: held-out") for k in r.kept)
