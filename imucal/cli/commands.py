@@ -246,6 +246,12 @@ def _mag_output(out: str | Path, signals) -> str:
             "mag and t_mag)")
 
 
+def _activity(value: str | None) -> str | None:
+    if value is not None and value not in ("walk", "jumps", "desk"):
+        raise typer.BadParameter(f"expected walk, jumps or desk, got {value!r}")
+    return value
+
+
 @app.command()
 def synth(
     out: Annotated[Path, typer.Argument(metavar="OUT.mat|OUT.csv", show_default=False,
@@ -315,9 +321,33 @@ def synth(
     mag_disturbance: Annotated[tuple[float, float] | None, typer.Option(
         "--mag-disturbance", metavar="T0 T1", show_default=False,
         help="A magnet carried with the sensor from T0 to T1 s (0.3 of the field).")] = None,
+    activity: Annotated[str | None, typer.Option(
+        "--activity", metavar="walk|jumps|desk", callback=_activity, show_default=False,
+        help="Everyday use instead of a calibration session (rare still moments, sway, taps; "
+             "method.md §10), with the calibration before the drift written beside it.")] = None,
+    drift_gyro_bias: Annotated[str | None, typer.Option(
+        "--drift-gyro-bias", metavar="X,Y,Z", show_default=False,
+        help="--activity: the gyroscope bias's change since calibration, deg/s.")] = None,
+    drift_acc_bias: Annotated[str | None, typer.Option(
+        "--drift-acc-bias", metavar="X,Y,Z", show_default=False,
+        help="--activity: the accelerometer bias's change, mg.")] = None,
+    drift_acc_scale: Annotated[str | None, typer.Option(
+        "--drift-acc-scale", metavar="X,Y,Z", show_default=False,
+        help="--activity: the accelerometer scales' change, %.")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
+    if activity is not None:
+        from imucal.cli.inuse import synth_everyday
+
+        synth_everyday(out, truth, activity, minutes=minutes, seed=seed, acc_rate=acc_rate,
+                       acc_noise=acc_noise, gyro_noise=gyro_noise,
+                       drifts=(drift_gyro_bias, drift_acc_bias, drift_acc_scale),
+                       verbose=verbose)
+        return
+    if (drift_gyro_bias, drift_acc_bias, drift_acc_scale) != (None, None, None):
+        raise usage_error("the --drift-* options shape everyday use: give --activity",
+                          "'--drift-gyro-bias'")
     csv = out.suffix.lower() == ".csv"
     if (preamble or cut_last_line) and not csv:
         raise usage_error("--preamble and --cut-last-line shape a CSV: name OUT.csv", "'OUT'")

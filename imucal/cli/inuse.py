@@ -1,0 +1,227 @@
+"""``imucal check`` and ``imucal refresh``: a stored calibration against a recording of
+everyday use (method.md §10). Registered on the same typer ``app`` as the others; they parse
+options, load, and call :mod:`imucal.inuse`.
+
+``check`` exits 0 when the calibration holds, 1 when it drifted, 2 when the recording cannot
+tell (and 1 too for bad input, as every command: the line on stderr says which)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from imucal.cli.commands import app
+from imucal.cli.options import (
+    INPUT_OPTIONS,
+    VerboseOpt,
+    input_options,
+    load_kwargs,
+    pick,
+    positive,
+    shared_options,
+)
+from imucal.cli.outputs import Progress, check_inputs, check_outputs
+from imucal.inuse.limits import ACC_LIMIT_MG, GYRO_LIMIT_DEG_S
+
+CHECK_INPUT_OPTIONS = input_options("Check the accelerometer alone.")
+CalibArg = Annotated[Path, typer.Argument(metavar="CALIB.json", show_default=False,
+                                          help="Calibration file from 'imucal calibrate'.")]
+RecordingArg = Annotated[Path, typer.Argument(
+    metavar="RECORDING", show_default=False,
+    help="A recording of ordinary use, in any format 'imucal calibrate' reads.")]
+
+
+def _load(calibration: Path, recording: Path, options: dict[str, Any], progress: Progress):
+    """The calibration, its stored figures and contents, the recording (read in the units the
+    calibration states where none is given), and notes on the units taken."""
+    import imucal
+    from imucal.io.calibration_file import recorded_units
+    from imucal.io.inuse_file import read_for_check
+
+    load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
+    check_inputs([calibration, recording, load_kw["gyro_path"]])
+    with progress.stage(f"reading {calibration.name}"):
+        cal, stored, data = read_for_check(calibration)
+        _, units = recorded_units(calibration)
+    notes = []
+    for key, unit in units.items():
+        if load_kw[key] == "auto":  # a still gyroscope cannot tell rad/s from deg/s itself
+            load_kw[key] = unit
+            sensor = {"acc_unit": "accelerometer", "gyro_unit": "gyroscope"}[key]
+            notes.append(f"{sensor} read in {unit}, as {calibration.name} states")
+    with progress.stage(f"loading {recording.name}"):
+        session = imucal.load_session(recording, **load_kw)
+    return cal, stored, data, session, notes
+
+
+@app.command("check")
+@shared_options(CHECK_INPUT_OPTIONS)
+def check_cmd(
+    calibration: CalibArg,
+    recording: RecordingArg,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the figures as JSON.")] = False,
+    acc_limit: Annotated[float, typer.Option(
+        "--acc-limit", metavar="MG", callback=positive,
+        help="The accelerometer drifted when its still-norm RMS is shown above this (or "
+             "twice what the calibration leads one to expect, if more).")] = ACC_LIMIT_MG,
+    gyro_limit: Annotated[float, typer.Option(
+        "--gyro-limit", metavar="DEG/S", callback=positive,
+        help="The gyroscope drifted when an axis' rate at rest is shown beyond this.")
+    ] = GYRO_LIMIT_DEG_S,
+    options: dict[str, Any] = None,  # INPUT_OPTIONS
+    verbose: VerboseOpt = False,
+) -> int:
+    """Does a calibration still hold? Judged from the still moments of a recording of
+    ordinary use (method.md §10).
+
+    Exit codes: 0 holds, 1 drifted (which parameters, by how much), 2 cannot tell (too few
+    still moments or orientations); 1 also for bad input, with one line saying so.
+    """
+    progress = Progress(verbose)
+    cal, stored, _, session, notes = _load(calibration, recording, options, progress)
+    from imucal.inuse.check import check
+
+    with progress.stage("finding still moments and judging"):
+        result = check(cal, stored, session, acc_limit_mg=acc_limit,
+                       gyro_limit_deg_s=gyro_limit)
+    if as_json:
+        import json
+
+        data = result.to_dict() | {"calibration": str(calibration),
+                                   "recording": session.source}
+        data["notes"] = notes + data["notes"] + list(session.notes)
+        print(json.dumps(data, indent=2, allow_nan=False))
+    else:
+        print("\n".join(_check_lines(result, calibration, session, notes)))
+    return result.exit_code
+
+
+def _check_lines(result, calibration: Path, session, notes: list[str]) -> list[str]:
+    m = result.moments
+    lines = [f"verdict         {result.level}: {result.reason}",
+             f"calibration     {calibration}"
+             + (f" (segment {result.segment}, the last)" if result.segment > 1 else ""),
+             f"recording       {session.source}: {session.duration:.1f} s",
+             f"still moments   {m.count}, {float(m.durations.sum()) if m.count else 0.0:.1f} s "
+             f"in all, {m.orientations} orientation(s); detector: window {m.window}, shortest "
+             f"{m.min_len} samples, k {m.k:g} on {m.level_from}"]
+    for p in result.parts:
+        lines.append(f"{p.sensor:<15} {p.level}: {p.reason}")
+    extra = notes + list(result.notes) + list(session.notes)
+    if extra:
+        lines.append("notes:")
+        lines += [f"  - {n}" for n in extra]
+    return lines
+
+
+@app.command("refresh")
+@shared_options(CHECK_INPUT_OPTIONS)
+def refresh_cmd(
+    calibration: CalibArg,
+    recording: RecordingArg,
+    out: Annotated[str, typer.Option("--out", "-o", metavar="NEW.json", show_default=False,
+                                     help="The refreshed calibration file to write.")],
+    options: dict[str, Any] = None,  # INPUT_OPTIONS
+    verbose: VerboseOpt = False,
+) -> int:
+    """Update what a recording of ordinary use determines: the gyroscope's bias from its
+    still moments, the accelerometer's bias and scale on each axis the moments cover at 0.3 g
+    on both sides; every other parameter stays exactly as stored (method.md §10).
+
+    Exit codes: 0 written; 2 the recording determines nothing (nothing written); 1 bad input.
+    """
+    check_outputs([out], [calibration, recording])
+    progress = Progress(verbose)
+    cal, stored, data, session, notes = _load(calibration, recording, options, progress)
+    from imucal.inuse.refresh import refresh
+    from imucal.io.inuse_file import file_sha256, refreshed_dict, write_refreshed
+
+    with progress.stage("finding still moments and refreshing"):
+        result = refresh(cal, stored, session)
+    lines = [f"check           {result.check.level}: {result.check.reason}"]
+    if not result.determined:
+        lines.append("refresh         nothing determined: "
+                     + "; ".join(result.kept) + "; nothing written")
+        print("\n".join(lines))
+        return 2
+    new = refreshed_dict(data, result, calibration=str(calibration),
+                         calibration_sha256=file_sha256(calibration),
+                         recording=session.source, recording_sha256=session.sha256
+                         or file_sha256(recording))
+    with progress.stage(f"writing {out}"):
+        write_refreshed(out, new)
+    for c in result.changed:
+        lines.append(f"changed         {c.sensor} {c.parameter}: {c.stored:.6g} -> "
+                     f"{c.value:.6g} ({c.change:+.3g} {c.unit}, std error {c.std_error:.2g})")
+    lines += [f"kept            {k}" for k in result.kept]
+    if result.norm_before_mg is not None:
+        lines.append(f"still-norm      {result.norm_before_mg:.2f} mg stored -> "
+                     f"{result.norm_after_mg:.2f} mg refreshed, over "
+                     f"{result.check.moments.count} moments")
+    lines += [f"  - {n}" for n in notes]
+    lines.append(f"wrote {out}")
+    print("\n".join(lines))
+    return 0
+
+
+def _triple(text: str | None, option: str) -> tuple[float, float, float]:
+    from imucal.cli.options import usage_error
+
+    if text is None:
+        return (0.0, 0.0, 0.0)
+    try:
+        x = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        x = ()
+    if len(x) != 3 or not all(abs(v) < 1e6 for v in x):
+        raise usage_error(f"expected three numbers X,Y,Z, got {text!r}", f"'{option}'")
+    return x  # type: ignore[return-value]
+
+
+def synth_everyday(out: Path, truth: Path | None, activity: str, *, minutes: float | None,
+                   seed: int, acc_rate: float, acc_noise: float, gyro_noise: float,
+                   drifts: tuple[str | None, str | None, str | None], verbose: bool) -> None:
+    """``imucal synth --activity``: a recording of everyday use (method.md §10), its truth,
+    and the calibration before the drift (OUT.calib.json, with the sensor's noise density),
+    which ``imucal check`` and ``imucal refresh`` take."""
+    import numpy as np
+
+    gyro_b = np.radians(_triple(drifts[0], "--drift-gyro-bias"))
+    acc_b = np.array(_triple(drifts[1], "--drift-acc-bias")) * 1e-3
+    acc_s = np.array(_triple(drifts[2], "--drift-acc-scale")) * 1e-2
+    truth = truth if truth is not None else out.with_name(out.name + ".truth.json")
+    calib = out.with_name(out.name + ".calib.json")
+    check_outputs([out, truth, calib], [])
+    from imucal.inuse.everyday import Drift, make_everyday
+    from imucal.io.atomic import write_text_atomic
+    from imucal.io.calibration_file import calibration_to_dict
+    from imucal.io.export import write_session_csv, write_session_mat
+    from imucal.stages.apply import Calibration, SegmentModels
+
+    progress = Progress(verbose)
+    with progress.stage(f"generating {activity}"):
+        session, tr = make_everyday(activity, minutes=10.0 if minutes is None else minutes,
+                                    seed=seed, rate=acc_rate, acc_noise=acc_noise,
+                                    gyro_noise=gyro_noise,
+                                    drift=Drift(gyro_bias=gyro_b, acc_bias=acc_b,
+                                                acc_scale=acc_s))
+    stored = Calibration(segments=(SegmentModels(0.0, 0.0, tr.stored_acc, tr.stored_gyro),),
+                         acc_unit_raw="g", acc_unit="g", g=1.0, gyro_unit_raw="rad/s")
+    density = acc_noise / float(np.sqrt(acc_rate))
+    cal = calibration_to_dict(stored) | {"noise": {"accelerometer": {
+        "unit": "g", "white_noise_density": [density] * 3,
+        "note": "the synthetic sensor's own (imucal synth --activity)"}}}
+    import json
+
+    with progress.stage(f"writing {out}"):
+        if out.suffix.lower() == ".csv":
+            write_session_csv(out, session)
+        else:
+            write_session_mat(out, session)
+        write_text_atomic(truth, json.dumps(tr.to_dict(), indent=2) + "\n")
+        write_text_atomic(calib, json.dumps(cal, indent=2) + "\n")
+    print(f"session         {activity}, {session.duration:.1f} s, {len(tr.still)} still "
+          f"stretches, {len(tr.taps)} taps, accelerometer and gyroscope at {acc_rate:g} Hz\n"
+          f"wrote {out}\nwrote {truth}\nwrote {calib} (the calibration before the drift)")
