@@ -23,7 +23,17 @@ from imucal.cli.options import (
     shared_options,
 )
 from imucal.cli.outputs import Progress, check_inputs, check_outputs
-from imucal.inuse.limits import ACC_LIMIT_MG, GYRO_LIMIT_DEG_S
+
+
+def _limits() -> tuple[float, float]:
+    """The limits declared once in imucal.inuse.limits (free of numpy), for the options'
+    defaults; imported here, not at the top, as every CLI module keeps its imports light."""
+    from imucal.inuse.limits import ACC_LIMIT_MG, GYRO_LIMIT_DEG_S
+
+    return ACC_LIMIT_MG, GYRO_LIMIT_DEG_S
+
+
+ACC_LIMIT_MG, GYRO_LIMIT_DEG_S = _limits()
 
 CHECK_INPUT_OPTIONS = input_options("Check the accelerometer alone.")
 CalibArg = Annotated[Path, typer.Argument(metavar="CALIB.json", show_default=False,
