@@ -109,7 +109,10 @@ class DevTools:
                                                    "button": "left", "buttons": buttons,
                                                    "clickCount": 1}, self.session)
             self.next_frame()
-            time.sleep(float(os.environ.get("CLICK_GAP", "0")))
+            # and a second apart: under a software rasterizer a frame of the Overview (every
+            # still block's gravity arrows in 3D) can outlast next_frame's wait, and egui then
+            # sees the press and the release together and drops the click
+            time.sleep(float(os.environ.get("CLICK_GAP", "1.0")))
 
     def close(self) -> None:
         with contextlib.suppress(OSError):
