@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 
 import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.numerics.directions import distinct_orientations
-from imucal.result import Result, Segment
+from imucal.result import Result, Segment, Triad
 from imucal.session import STANDARD_GRAVITY, Session, validate
 from imucal.settings import Settings
 from imucal.stages.accel import (
@@ -37,7 +38,15 @@ from imucal.stages.sanity import (
     unwrap_session,
 )
 from imucal.stages.saturation import blocks_meeting, saturated_mask, saturated_runs
+from imucal.stages.triads import (
+    MIN_SHARED_BLOCKS,
+    BlockMeans,
+    TriadModels,
+    interval_means,
+    triad_agreement,
+)
 from imucal.stages.verdict import SegmentFigures, judge
+from imucal.streams import Stream
 from imucal.warning import RunWarning
 
 
@@ -282,3 +291,115 @@ def _check_blocks(session: Session, det: Detection, settings: Settings, g_in: fl
 
 
 __all__ = ["Result", "Segment", "Settings", "calibrate", "select_points", "make_nominal"]
+
+
+# --- several triads in one device (method.md §9) -----------------------------------------------
+
+
+def calibrate_triads(result: Result, which: Sequence[str] | str = "all") -> Result:
+    """The run ``result`` with the session's other accelerometer triads (``Session.others``):
+    each calibrated with the whole method on its own samples (with its own IMU's gyroscope where
+    the session has one), and its rotation to ``result``'s triad, the reference, estimated from
+    the reference's still blocks (M8, M9) with the triads' held-out agreement. ``which`` is
+    ``"all"`` or the names of the triads to take (a stream's instance, its IMU, or its name). A
+    triad that cannot be calibrated is said in its ``said``, never stops the run."""
+    session, settings = result.session, result.settings
+    accs = [s for s in session.others if s.kind == "acc"]
+    if which != "all":
+        wanted = [w.lower() for w in which]
+        accs_named = [s for s in accs if {s.instance.lower(), (s.imu or "").lower(),
+                                          s.name.lower()} & set(wanted)]
+        missing = [w for w in wanted if not any(
+            w in {s.instance.lower(), (s.imu or "").lower(), s.name.lower()} for s in accs)]
+        if missing:
+            have = ", ".join(s.instance for s in accs) or "none"
+            raise ImucalError(f"no other accelerometer triad {missing[0]!r}; the session has: "
+                              f"{have}", source=session.source, field="triads")
+        accs = accs_named
+    g_ref = result.calibration.g
+    ref = interval_means(session.t_acc, functools.partial(result.calibration.rows, session, "acc"),
+                         result.block_times, g_ref)
+    raw = interval_means(session.t_acc, lambda a, b: session.acc[a:b], result.block_times, 1.0)
+    ref_raw = result.whole.nominal.to_nominal(raw.means)
+    ref_models = _triad_models(result, raw.means, result.block_times)
+    triads = [_one_triad(session, settings, s, ref, ref_raw, ref_models, result.block_times)
+              for s in accs]
+    return dataclasses.replace(result, triads=tuple(triads))
+
+
+def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
+                  ) -> TriadModels:
+    """A run's accelerometer fits for the rotation's error (M9): each of the reference's
+    blocks (``block_times``) in the segment whose span holds its middle, else the nearest."""
+    mid = block_times.mean(axis=1)
+    spans = np.array([[s.t_start, s.t_end] for s in result.segments])
+    outside = np.maximum(spans[None, :, 0] - mid[:, None], mid[:, None] - spans[None, :, 1])
+    return TriadModels(raw_means=raw_means, segment_of_block=np.argmin(outside, axis=1),
+                       params=tuple(s.acc.params for s in result.segments),
+                       covs=tuple(s.acc.cov for s in result.segments), g=result.calibration.g)
+
+
+def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMeans,
+               ref_raw: np.ndarray, ref_models: TriadModels, block_times: np.ndarray) -> Triad:
+    said: list[str] = []
+    gyro = _gyro_partner(session, acc)
+    sub = _triad_session(session, acc, gyro, said)
+    try:
+        res = calibrate(sub, settings)
+    except ImucalError as e:
+        said.append(f"{acc.name} not calibrated: {e.problem}")
+        return Triad(acc.name, gyro.name if gyro else None, None, None, tuple(said))
+    if res.verdict is not None and not res.verdict.usable:
+        said.append(f"{acc.name}: its own calibration is not usable ({res.verdict.reason})")
+    other = interval_means(sub.t_acc, functools.partial(res.calibration.rows, sub, "acc"),
+                           block_times, res.calibration.g, clipped=saturated_mask(sub.acc))
+    raw = interval_means(sub.t_acc, lambda a, b: sub.acc[a:b], block_times, 1.0)
+    other_raw = res.whole.nominal.to_nominal(raw.means)
+    agreement = triad_agreement(ref, other, ref_raw, other_raw, ref_models,
+                                _triad_models(res, raw.means, block_times))
+    if agreement is None:
+        said.append(f"{acc.name}: fewer than {MIN_SHARED_BLOCKS} of the reference's still blocks "
+                    "in two directions hold its samples; its rotation to the reference is not "
+                    "estimated")
+    if gyro is not None:
+        said.append(f"{gyro.name}: calibrated with {acc.name}, in its own frame (its rotation to "
+                    "the reference from the turns is not estimated yet)")
+    return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said))
+
+
+def _gyro_partner(session: Session, acc: Stream) -> Stream | None:
+    """The gyroscope of the accelerometer's IMU (a log's), or a table's g2x… beside a2x…."""
+    gyros = [s for s in session.others if s.kind == "gyro"]
+    if acc.imu is not None:
+        same = [g for g in gyros if g.imu == acc.imu]
+        if same:
+            return same[0]
+    if acc.instance[:1] == "a" and acc.instance[1:].isdigit():
+        same = [g for g in gyros if g.instance == "g" + acc.instance[1:]]
+        if same:
+            return same[0]
+    return None
+
+
+def _triad_session(session: Session, acc: Stream, gyro: Stream | None,
+                   said: list[str]) -> Session:
+    """A Session of one triad's streams, calibrated like any other (units as the streams state
+    them; one it does not state is that of the reference triad, and said)."""
+    acc_unit = acc.unit
+    if acc_unit is None:
+        acc_unit = session.acc_unit
+        said.append(f"{acc.name}: unit not stated, taken as the reference's ({acc_unit})")
+    g_values, g_unit = None, None
+    if gyro is not None:
+        g_values, g_unit = gyro.values, gyro.unit
+        if g_unit is None:
+            g_unit = session.gyro_unit or "rad/s"
+            said.append(f"{gyro.name}: unit not stated, taken as the reference's ({g_unit})")
+        if g_unit == "deg/s":
+            g_values, g_unit = np.radians(g_values), "rad/s"
+    return Session(acc=acc.values, t_acc=acc.t, gyro=g_values,
+                   t_gyro=None if gyro is None else gyro.t, acc_unit=acc_unit,
+                   gyro_unit=g_unit if gyro is not None else "rad/s",
+                   source=f"{session.source} [{acc.name}]", sha256=session.sha256,
+                   notes=acc.notes + (gyro.notes if gyro is not None else ()),
+                   chosen=tuple(f"{s.name} ({s.origin})" for s in (acc, gyro) if s is not None))

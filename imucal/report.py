@@ -139,7 +139,28 @@ def _overview(result: Result) -> tuple[Line, ...]:
         Line("segments", seg_text),
         Line("output", f"calibrated accelerometer in {cal.acc_unit} (|g| = {cal.g:g})"
                        + (", gyroscope in rad/s" if s.has_gyro else "")),
+        *_triads(result),
     )
+
+
+def _triads(result: Result) -> tuple[Line, ...]:
+    """The other triads (method.md §9): each one's rotation to the reference and how well the
+    two agree once calibrated, then what was said about it."""
+    out = []
+    for tri in result.triads:
+        a, res = tri.agreement, tri.result
+        own = ("" if res is None or res.verdict is None
+               else f"; its own verdict: {res.verdict.level}")
+        if a is None:
+            text = "calibrated, not rotated" if res is not None else "not calibrated"
+        else:
+            text = (f"turned {a.angle_deg:.3f} deg from the reference (+- "
+                    f"{a.rotation.std_total_deg:.3f} deg, {a.blocks} shared still poses); the "
+                    f"two agree within {a.held_out_rms_mg:.3g} mg RMS on poses held out "
+                    f"(before calibration {a.before_rms_mg:.3g} mg)")
+        out.append(Line("triad", f"{tri.name}: {text}{own}"))
+        out += [Line("triad", t) for t in tri.said]
+    return tuple(out)
 
 
 def _details(result: Result) -> tuple[Line, ...]:

@@ -21,6 +21,7 @@ from imucal.stages.guide import Guide
 from imucal.stages.gyro import GyroFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
+from imucal.stages.triads import TriadAgreement
 from imucal.stages.verdict import Verdict
 from imucal.warning import RunWarning
 
@@ -49,6 +50,20 @@ class Segment:
 
 
 @dataclass(frozen=True)
+class Triad:
+    """Another accelerometer triad of the session (method.md §9): its own run of the whole
+    method (``result``: None where it could not be calibrated, ``said`` tells why), with its
+    gyroscope where its IMU has one, and its rotation to the reference and agreement with it
+    once calibrated (``agreement``: None without enough shared still blocks)."""
+
+    name: str  # the accelerometer stream's name, e.g. "acc sensor_accel:1"
+    gyro: str | None  # the gyroscope stream calibrated with it, if any
+    result: Result | None
+    agreement: TriadAgreement | None
+    said: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class Result:
     """Everything a run produced: the calibration and every intermediate the viewer shows.
 
@@ -71,6 +86,9 @@ class Result:
     warnings: list[RunWarning] = field(default_factory=list)
     guide: Guide | None = None  # poses, holds and turns against the limits; what to record
     verdict: Verdict | None = None  # good / usable with caveats / not usable, and why
+    # The session's other triads, each calibrated on its own and put in this run's frame
+    # (method.md §9; imucal.pipeline.calibrate_triads); empty for a session of one triad.
+    triads: tuple[Triad, ...] = ()
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

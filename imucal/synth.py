@@ -17,6 +17,7 @@ import numpy as np
 from imucal.models import SensorModel, acc_T, gyro_T
 from imucal.numerics import quaternion as quat
 from imucal.session import STANDARD_GRAVITY, Session
+from imucal.streams import Stream
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,7 @@ class Truth:
     gyro_drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
     g: float = 1.0
     pose_times: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    triads: tuple[TriadTruth, ...] = ()  # the session's other accelerometer triads (§9)
 
     def to_dict(self) -> dict:
         def m(model: SensorModel | None) -> dict | None:
@@ -46,7 +48,40 @@ class Truth:
                 "accelerometer_after_change": m(self.acc2), "gyroscope_after_change": m(self.gyro2),
                 "t_change": self.t_change, "gyro_drift": self.gyro_drift.tolist(), "g": self.g,
                 "still_intervals": self.pose_times.tolist(),
-                "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"}
+                "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"
+                } | ({"triads": [t.to_dict() for t in self.triads]} if self.triads else {})
+
+
+@dataclass(frozen=True)
+class SecondTriad:
+    """A second accelerometer triad in the same device (method.md §9): turned by a random
+    rotation of ``rotation_deg`` about a random axis from the first, clipped at ``range_g``, with
+    its own errors, noise (g per sample), rate and clock (started a random fraction of a sample
+    late)."""
+
+    rotation_deg: float = 3.0
+    range_g: float = 8.0
+    noise: float = 0.006
+    rate: float | None = None  # Hz; None: the first triad's
+    mis: float = 0.01
+    scale: float = 0.03
+    bias: float = 0.05
+
+
+@dataclass(frozen=True)
+class TriadTruth:
+    """What made a second triad: ``u = R v`` takes its calibrated frame to the first's (M8)."""
+
+    name: str
+    model: SensorModel  # M2 in the triad's raw unit
+    R: np.ndarray  # (3, 3) to the first triad's frame
+    range: float  # clipping level, in the raw unit
+    noise: float  # per sample, g
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "T": self.model.T.tolist(), "K": self.model.K.tolist(),
+                "b": self.model.b.tolist(), "rotation_to_reference": self.R.tolist(),
+                "range": self.range, "noise_g": self.noise}
 
 
 def random_acc_model(rng: np.random.Generator, mis: float = 0.01, scale: float = 0.03,
@@ -126,6 +161,7 @@ def make_session(
     counts_per_g: float = 4096.0,
     gyro_unit: str = "rad/s",
     counts_per_rad_s: float = 939.65,
+    second_acc: SecondTriad | None = None,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -139,6 +175,9 @@ def make_session(
     ``acc_unit`` "g", "m/s^2" or "counts"; ``gyro_unit`` "rad/s", "deg/s" or "counts". A
     session holds rad/s or counts (:class:`~imucal.session.Session`), so "deg/s" gives rad/s
     here: write it with ``write_session_mat(..., gyro_unit="deg/s")`` for a file in deg/s.
+    ``second_acc`` adds a second accelerometer triad (``Session.others``, named ``a2`` as a
+    table's a2x… columns are) and its truth (``Truth.triads``), drawn from a generator of its
+    own: the first triad and the gyroscope are the same as without it.
     """
     rng = np.random.default_rng(seed)
     motion = make_motion(rng, poses, still, move, init_still)
@@ -188,12 +227,42 @@ def make_session(
         gyro2 = _rescale(gyro2, counts_per_rad_s, 32768.0, 1.0)
         drift = drift * counts_per_rad_s
 
+    others, triads = (), ()
+    if second_acc is not None:
+        stream, tt = _second_triad(motion, second_acc, seed, acc_rate, acc_unit)
+        others, triads = (stream,), (tt,)
     session = Session(acc=raw_a, t_acc=t_a, gyro=raw_g, t_gyro=t_g, acc_unit=acc_unit,
                       gyro_unit="counts" if gyro_unit == "counts" else "rad/s",
-                      source=f"synthetic(seed={seed}, poses={poses})")
+                      source=f"synthetic(seed={seed}, poses={poses})", others=others)
     truth = Truth(acc=acc_truth, gyro=gyro_truth, acc2=acc2, gyro2=gyro2, t_change=t_change,
-                  gyro_drift=drift, g=g, pose_times=motion.still)
+                  gyro_drift=drift, g=g, pose_times=motion.still, triads=triads)
     return session, truth
+
+
+def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
+                  acc_unit: str) -> tuple[Stream, TriadTruth]:
+    """The second accelerometer's stream and truth (method.md §9, M8: ``u = R v``)."""
+    if acc_unit not in ("g", "m/s^2"):
+        raise ValueError(f"a second triad is made in g or m/s^2, not {acc_unit!r}")
+    rng = np.random.default_rng([seed, 2])
+    axis = rng.normal(0, 1, 3)
+    axis /= np.linalg.norm(axis)
+    R = quat.to_matrix(quat.from_rotvec(axis[None] * np.radians(spec.rotation_deg)))[0]
+    model = random_acc_model(rng, spec.mis, spec.scale, spec.bias)
+    rate = spec.rate or acc_rate
+    duration = float(motion.still[-1, 1])
+    t = (rng.uniform(0, 1) + np.arange(int(duration * rate) - 1)) / rate
+    q, _ = motion.at(t)
+    v = quat.rotate_inverse(q, np.array([0.0, 0.0, 1.0])) @ R  # v = R' u, row by row
+    raw = model.invert(v) + rng.normal(0, spec.noise, v.shape)
+    raw = np.clip(raw, -spec.range_g, spec.range_g)  # the triad's range: flat beyond it
+    g = STANDARD_GRAVITY if acc_unit == "m/s^2" else 1.0
+    raw *= g
+    model = _rescale(model, g, 0.0, g)
+    stream = Stream("acc", "a2", t, raw, acc_unit, "synthetic second accelerometer (a2x, a2y, "
+                    "a2z)", time_source="its own clock")
+    return stream, TriadTruth(name="a2", model=model, R=R, range=spec.range_g * g,
+                              noise=spec.noise)
 
 
 def _distort(ideal: np.ndarray, t: np.ndarray, m1: SensorModel, m2: SensorModel | None,

@@ -81,6 +81,14 @@ def calibrate(
         "--spec", metavar="LIMITS.toml", show_default=False,
         help="Limits the unit must be within (as for 'imucal batch'): out of them, the "
              "verdict is 'not usable'.")] = None,
+    all_imus: Annotated[bool, typer.Option(
+        "--all-imus", help="Also calibrate every other accelerometer triad of the file (other "
+                           "IMUs of a log, a2x… columns), each with its own gyroscope, and put "
+                           "each in the calibrated one's frame (method.md §9).")] = False,
+    triad: Annotated[list[str] | None, typer.Option(
+        "--triad", metavar="NAME", help="Also calibrate this other accelerometer triad (a "
+                                        "stream or IMU name; repeat for several), as "
+                                        "--all-imus does for all.")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -122,6 +130,11 @@ def calibrate(
             sess = imucal.load_session(session, **load_kw)
         with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
             result = imucal.calibrate(sess, **settings)
+        if all_imus or triad:
+            from imucal.pipeline import calibrate_triads
+
+            with progress.stage("calibrating the other triads"):
+                result = calibrate_triads(result, "all" if all_imus else triad)
         if limits is not None:
             result = _judged_by_spec(result, limits)
         if result.verdict is not None and not result.verdict.usable and not allow_poor:

@@ -146,7 +146,44 @@ def result_to_dict(result: Result) -> dict:
         "guide": None if result.guide is None else result.guide.to_dict(),
         # The run judged (imucal.stages.verdict): level, the one reason, the next step.
         "verdict": None if result.verdict is None else result.verdict.to_dict(),
-    }
+    } | ({"triads": _triads_dict(result)} if result.triads else {})
+
+
+def _triads_dict(result: Result) -> dict:
+    """The session's other triads (method.md §9): each one's own calibration (its segments,
+    quality and verdict, as for the reference), its rotation to the reference with the standard
+    error, and the agreement of the two once calibrated. Only written when there are some, so a
+    session of one triad writes the file it always did."""
+    out = []
+    for tri in result.triads:
+        entry: dict[str, Any] = {"accelerometer": tri.name, "gyroscope": tri.gyro}
+        if tri.result is not None:
+            own = result_to_dict(tri.result)
+            entry |= {"units": own["units"], "segments": own["segments"],
+                      "quality": own["quality"], "verdict": own["verdict"],
+                      "warnings": own["warnings"]}
+        a = tri.agreement
+        if a is not None:
+            rot = a.rotation
+            entry |= {
+                "rotation_to_reference": _fl(rot.R),
+                "rotation_angle_deg": _f(a.angle_deg),
+                "rotation_std_deg": {"about_x": _f(rot.std_deg[0]), "about_y": _f(rot.std_deg[1]),
+                                     "about_z": _f(rot.std_deg[2]),
+                                     "total": _f(rot.std_total_deg)},
+                "shared_static_blocks": a.blocks,
+                "agreement_mg": {"before": {"rms": _f(a.before_rms_mg)},
+                                 "after_held_out": {"rms": _f(a.held_out_rms_mg),
+                                                    "max": _f(float(np.max(a.held_out_mg)))}},
+            }
+        entry["said"] = list(tri.said)
+        out.append(entry)
+    chosen = result.session.chosen
+    return {"reference": chosen[0] if chosen else "the calibrated accelerometer",
+            "convention": "u_ref = R u_triad (method.md M8): R turns a triad's calibrated "
+                          "vector into the reference triad's frame; std in degrees about the "
+                          "reference's axes, total = sqrt(trace of the covariance)",
+            "triads": out}
 
 
 def _gyro_cv_keys(fit: GyroFit) -> dict:

@@ -1,0 +1,291 @@
+"""Several triads in one device (method.md §9): the rotation of each other accelerometer triad to
+the reference's frame from the still blocks both saw (M8, M9), its standard error, and how well
+the triads agree once calibrated (held-out blocks, in mg); for a flight log that calibrates
+nothing, how far the IMUs disagree as logged.
+
+Each triad's own calibration is the whole method run on its own samples (the pipeline does
+that); this module only compares calibrated block means, so it knows nothing of M2's
+parameters and works for triads on different clocks, rates and units.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from imucal.models import acc_model
+from imucal.numerics import quaternion as quat
+from imucal.numerics.windows import samples_within
+
+# Fewest samples of a triad inside a reference block for its mean to count (method.md §9).
+MIN_SAMPLES = 2
+# PX4 refuses to arm when two accelerometers differ by more than this (COM_ARM_IMU_ACC).
+PX4_ARM_ACC_M_S2 = 0.7
+
+
+@dataclass(frozen=True)
+class BlockMeans:
+    """One triad's calibrated means inside the reference's still blocks (in units of |g|)."""
+
+    means: np.ndarray  # (B, 3) mean / |g|
+    var: np.ndarray  # (B,) variance of the mean, per axis (the axes' mean), in |g|^2
+    counts: np.ndarray  # (B,) samples inside each block
+
+
+def interval_means(t: np.ndarray, rows: Callable[[int, int], np.ndarray],
+                   intervals: np.ndarray, g: float,
+                   clipped: np.ndarray | None = None) -> BlockMeans:
+    """The mean and the variance of the mean of ``rows(a, b)`` (calibrated samples) inside each
+    closed time interval (method.md §9: the other triad averaged in the reference's blocks,
+    whatever its clock). A block with fewer than :data:`MIN_SAMPLES` samples, or holding a
+    sample of ``clipped`` (a (N,) mask of saturated samples), gets NaN."""
+    idx = samples_within(t, intervals)
+    b = len(idx)
+    means = np.full((b, 3), np.nan)
+    var = np.full(b, np.nan)
+    counts = idx[:, 1] - idx[:, 0]
+    bad = None
+    if clipped is not None and clipped.any():
+        csum = np.concatenate([[0], np.cumsum(clipped)])
+        bad = csum[idx[:, 1]] - csum[idx[:, 0]] > 0
+    for k, (lo, hi) in enumerate(idx):  # a loop over blocks, each a slice of samples
+        if hi - lo < MIN_SAMPLES or (bad is not None and bad[k]):
+            continue
+        x = rows(int(lo), int(hi)) / g
+        means[k] = x.mean(axis=0)
+        var[k] = float(np.mean(x.var(axis=0, ddof=1))) / (hi - lo)
+    return BlockMeans(means=means, var=var, counts=counts)
+
+
+def kabsch(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The rotation R minimising ``sum w_k |u_k - R v_k|^2`` (Wahba's problem by the SVD,
+    its determinant forced to +1): the start of M9."""
+    h = (u * w[:, None]).T @ v  # sum w_k u_k v_k'
+    a, _, bt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(a @ bt)) or 1.0
+    return a @ np.diag([1.0, 1.0, d]) @ bt
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) cross-product matrices [v]x."""
+    z = np.zeros(len(v))
+    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], -1),
+                     np.stack([v[:, 2], z, -v[:, 0]], -1),
+                     np.stack([-v[:, 1], v[:, 0], z], -1)], axis=1)
+
+
+def _exp(delta: np.ndarray) -> np.ndarray:
+    return quat.to_matrix(quat.from_rotvec(delta[None, :]))[0]
+
+
+@dataclass(frozen=True)
+class RotationFit:
+    """M9 solved: the rotation taking the other triad's frame to the reference's, its
+    covariance (rad^2, in the reference's frame) and the fit's chi-square."""
+
+    R: np.ndarray  # (3, 3)
+    cov: np.ndarray  # (3, 3) rad^2, scaled by the reduced chi-square where above 1
+    chi2: float
+    dof: int
+
+    @property
+    def std_deg(self) -> np.ndarray:
+        """Standard error of the rotation about each reference axis, deg."""
+        return np.degrees(np.sqrt(np.diag(self.cov)))
+
+    @property
+    def std_total_deg(self) -> float:
+        """The expected size of the rotation's error, ``sqrt(trace cov)``, deg."""
+        return float(np.degrees(np.sqrt(np.trace(self.cov))))
+
+
+def fit_rotation(u: np.ndarray, v: np.ndarray, s2: np.ndarray,
+                 start: np.ndarray | None = None, iterations: int = 8) -> RotationFit:
+    """``u_k = R v_k + e_k`` (M8) by Kabsch then Gauss–Newton on ``R = R_0 exp([delta]x)``
+    (M9); the covariance ``c (J' W J)^-1`` from the Jacobian, ``c`` the reduced chi-square
+    where it exceeds 1 (the triads' own calibration errors then count in it)."""
+    w = 1.0 / s2
+    r0 = kabsch(u, v, w) if start is None else start
+    jtwj = np.eye(3)
+    for _ in range(iterations):
+        res = u - v @ r0.T  # r_k = u_k - R v_k
+        jac = r0[None] @ _skew(v)  # d r_k / d delta = R [v_k]x
+        jtwj = np.einsum("k,kij,kil->jl", w, jac, jac)
+        step = -np.linalg.solve(jtwj, np.einsum("k,kij,ki->j", w, jac, res))
+        r0 = r0 @ _exp(step)
+        if np.linalg.norm(step) < 1e-12:
+            break
+    res = u - v @ r0.T
+    chi2 = float(np.sum(w * np.sum(res**2, axis=1)))
+    dof = max(3 * len(u) - 3, 1)
+    jac = r0[None] @ _skew(v)
+    jtwj = np.einsum("k,kij,kil->jl", w, jac, jac)
+    cov_body = np.linalg.inv(jtwj) * max(1.0, chi2 / dof)
+    # R exp([d]x) = exp([R d]x) R: the error about the reference's axes is R d.
+    return RotationFit(R=r0, cov=r0 @ cov_body @ r0.T, chi2=chi2, dof=dof)
+
+
+def angle_deg(r1: np.ndarray, r2: np.ndarray) -> float:
+    """The angle of the rotation ``r1' r2``, deg."""
+    c = (np.trace(r1.T @ r2) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+@dataclass(frozen=True)
+class TriadAgreement:
+    """Another accelerometer triad against the reference (method.md §9)."""
+
+    rotation: RotationFit
+    blocks: int  # shared still blocks used
+    held_out_mg: np.ndarray  # (blocks,) |u_k - R_(-k) v_k| with block k held out, mg
+    before_mg: np.ndarray  # (blocks,) |u_k - v_k| of the raw means in the nominal frame, mg
+    used: np.ndarray  # (B,) True on the reference's blocks both triads saw
+
+    @property
+    def held_out_rms_mg(self) -> float:
+        return float(np.sqrt(np.mean(self.held_out_mg**2)))
+
+    @property
+    def before_rms_mg(self) -> float:
+        return float(np.sqrt(np.mean(self.before_mg**2)))
+
+    @property
+    def angle_deg(self) -> float:
+        """The rotation's angle, deg: how far the other triad's frame is turned."""
+        return angle_deg(np.eye(3), self.rotation.R)
+
+
+# Fewest shared blocks, in at least two directions, for a rotation (two determine it; a third
+# leaves a residual to judge the fit by, and one to hold out).
+MIN_SHARED_BLOCKS = 4
+
+
+@dataclass(frozen=True)
+class TriadModels:
+    """One triad's accelerometer fits as the rotation's error sees them (method.md §9): its raw
+    means inside the reference's blocks, each block's segment, and each segment's M2
+    parameters (``ACC_PARAM_NAMES`` order, raw units) with their covariance."""
+
+    raw_means: np.ndarray  # (B, 3) raw units
+    segment_of_block: np.ndarray  # (B,) index into params / covs
+    params: tuple[np.ndarray, ...]  # (9,) each
+    covs: tuple[np.ndarray, ...]  # (9, 9) each
+    g: float  # the calibrated output's |g|
+
+    def means(self, params: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+        """(B, 3) calibrated means / |g| through M2 with ``params`` (the fits' own if None)."""
+        params = self.params if params is None else params
+        out = np.empty_like(self.raw_means)
+        for s, p in enumerate(params):
+            on = self.segment_of_block == s
+            out[on] = acc_model(p).apply(self.raw_means[on]) / self.g
+        return out
+
+
+def propagated_cov(models: TriadModels, which: int, u: np.ndarray, v: np.ndarray,
+                   s2: np.ndarray, used: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(3, 3) the rotation's covariance (rad^2, reference frame) from one triad's own M2
+    errors: each parameter moved a little, the rotation refitted (M9), the change's Jacobian
+    ``J`` and ``J C J'`` over the segments. ``which`` 0: the triad is the reference (``u``),
+    1: the other (``v``)."""
+    base = models.means()[used]
+    out = np.zeros((3, 3))
+    for s, (p, c) in enumerate(zip(models.params, models.covs)):
+        if not np.any(models.segment_of_block[used] == s):
+            continue
+        jac = np.zeros((3, 9))
+        for j in range(9):  # 9 small refits per segment, a loop over parameters
+            eps = 1e-6 * max(1.0, abs(float(p[j])))
+            moved = list(models.params)
+            moved[s] = p.copy()
+            moved[s][j] += eps
+            d = models.means(tuple(moved))[used] - base
+            uu, vv = (u + d, v) if which == 0 else (u, v + d)
+            r2 = fit_rotation(uu, vv, s2, start=R, iterations=2).R
+            dr = r2 @ R.T  # a small rotation: its axis-angle is its skew part, to first order
+            jac[:, j] = np.array([dr[2, 1] - dr[1, 2], dr[0, 2] - dr[2, 0],
+                                  dr[1, 0] - dr[0, 1]]) / (2 * eps)
+        out += jac @ c @ jac.T
+    return out
+
+
+def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
+                    other_raw: np.ndarray, ref_models: TriadModels | None = None,
+                    other_models: TriadModels | None = None) -> TriadAgreement | None:
+    """The rotation of ``other`` to ``ref`` (M8, M9) from the blocks both saw, and their
+    held-out agreement; ``ref_raw``/``other_raw`` (B, 3) the raw means in each triad's nominal
+    frame (|g|-normalised) for the figure before calibration. Given each triad's fits
+    (``*_models``), the rotation's covariance holds their errors too (M2's frame moves with
+    its misalignment angles, and the rotation with it). None where fewer than
+    :data:`MIN_SHARED_BLOCKS` blocks are shared or they all point one way."""
+    used = np.isfinite(ref.var) & np.isfinite(other.var)
+    if used.sum() < MIN_SHARED_BLOCKS:
+        return None
+    u, v = ref.means[used], other.means[used]
+    s2 = ref.var[used] + other.var[used]
+    s2 = np.maximum(s2, 1e-18)  # a noiseless (synthetic) block still gets a finite weight
+    if np.linalg.matrix_rank(u, tol=0.05) < 2:  # one direction: a turn about it is free
+        return None
+    fit = fit_rotation(u, v, s2)
+    for k, models in enumerate((ref_models, other_models)):
+        if models is not None:
+            fit = dataclasses.replace(fit, cov=fit.cov + propagated_cov(
+                models, k, u, v, s2, used, fit.R))
+    n = len(u)
+    held = np.empty(n)
+    keep = np.ones(n, bool)
+    for k in range(n):  # one small refit per block held out (a loop over blocks)
+        keep[k] = False
+        rk = fit_rotation(u[keep], v[keep], s2[keep], start=fit.R, iterations=3).R
+        keep[k] = True
+        held[k] = np.linalg.norm(u[k] - rk @ v[k]) * 1e3
+    before = np.linalg.norm(ref_raw[used] - other_raw[used], axis=1) * 1e3
+    return TriadAgreement(rotation=fit, blocks=n, held_out_mg=held, before_mg=before, used=used)
+
+
+# --- a log that calibrates nothing: the IMUs as logged ------------------------------------------
+
+
+@dataclass(frozen=True)
+class LoggedImu:
+    """One accelerometer of a log as logged: its mean, temperature, and difference to the
+    reference's over the time both cover (method.md §9, a flight log)."""
+
+    name: str
+    samples: int
+    mean: np.ndarray  # (3,) mean accelerometer vector, in the stream's unit
+    unit: str | None
+    temperature: float | None  # mean deg C, where the log has its temperature
+    difference: float | None  # |mean - reference's mean| over the shared time, stream's unit
+    shared_s: float  # the time both cover, s
+
+
+def logged_disagreement(accs: list[tuple[str, np.ndarray, np.ndarray, str | None]],
+                        temps: dict[str, tuple[np.ndarray, np.ndarray]]) -> list[LoggedImu]:
+    """Each accelerometer ``(name, t, values, unit)`` against the first (the reference): the
+    means over the time both cover, and their difference. ``temps`` maps a name to its
+    temperature stream ``(t, values)``. A triad in g is compared in g, one in m/s² in m/s²:
+    a pair in different units is converted to the reference's."""
+    g = 9.80665
+    ref_name, t0, x0, unit0 = accs[0]
+    out = []
+    for name, t, x, unit in accs:
+        temp = temps.get(name)
+        tmean = None if temp is None or len(temp[1]) == 0 else float(np.mean(temp[1]))
+        lo, hi = max(t0[0], t[0]), min(t0[-1], t[-1])
+        diff, span = None, max(0.0, float(hi - lo))
+        mine = (t >= lo) & (t <= hi)
+        theirs = (t0 >= lo) & (t0 <= hi)
+        if name != ref_name and mine.any() and theirs.any():
+            scale = 1.0
+            if unit != unit0 and {unit, unit0} == {"g", "m/s^2"}:
+                scale = g if unit0 == "m/s^2" else 1.0 / g
+            diff = float(np.linalg.norm(x[mine].mean(axis=0) * scale - x0[theirs].mean(axis=0)))
+        elif name == ref_name:
+            diff, span = 0.0, float(t0[-1] - t0[0])
+        out.append(LoggedImu(name=name, samples=len(t), mean=x.mean(axis=0), unit=unit,
+                             temperature=tmean, difference=diff, shared_s=span))
+    return out

@@ -1,0 +1,114 @@
+"""Several triads in one device (method.md §9): the rotation of a second accelerometer to the
+reference from the shared still blocks (M8, M9), its standard error, and the agreement after
+calibration, on synthetic sessions with their truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from imucal.errors import ImucalError
+from imucal.io.calibration_file import result_to_dict
+from imucal.pipeline import calibrate, calibrate_triads
+from imucal.report import report
+from imucal.stages.triads import angle_deg, fit_rotation, kabsch
+from imucal.synth import SecondTriad, make_session
+
+SEEDS = range(12)
+
+
+def _run(seed: int, **spec):
+    session, truth = make_session(poses=20, seed=seed, acc_rate=200.0,
+                                  second_acc=SecondTriad(rate=400.0, **spec))
+    return calibrate_triads(calibrate(session)), truth
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return [_run(seed) for seed in SEEDS]
+
+
+def test_rotation_to_the_reference_within_0_05_deg_of_the_truth_from_20_poses(runs):
+    errors = []
+    for result, truth in runs:
+        (tri,) = result.triads
+        assert tri.result is not None and tri.agreement is not None
+        a = tri.agreement
+        assert a.blocks == 20  # every reference pose seen by the 400 Hz triad
+        errors.append(angle_deg(a.rotation.R, truth.triads[0].R))
+        # The rotation drawn is 3 deg: the estimate is that, not the identity.
+        assert a.angle_deg == pytest.approx(3.0, abs=0.05)
+    assert max(errors) < 0.05, errors
+
+
+def test_the_reported_standard_error_is_honest_over_seeds(runs):
+    """The error's size over seeds against sqrt(trace cov): within 1.5x either way."""
+    err = np.array([angle_deg(r.triads[0].agreement.rotation.R, t.triads[0].R)
+                    for r, t in runs])
+    sd = np.array([r.triads[0].agreement.rotation.std_total_deg for r, _ in runs])
+    ratio = float(np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(sd**2)))
+    assert 1 / 1.5 < ratio < 1.5, (ratio, err, sd)
+
+
+def test_the_triads_agree_within_1_mg_on_held_out_blocks_after_calibration(runs):
+    for result, _ in runs:
+        a = result.triads[0].agreement
+        assert a.held_out_rms_mg < 1.0
+        assert float(np.max(a.held_out_mg)) < 2.0
+        # Before calibration the triads were far apart (biases of 50 mg, 3 % scales, 3 deg).
+        assert a.before_rms_mg > 30.0
+
+
+def test_wahba_then_gauss_newton_recovers_a_large_rotation_exactly():
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(6, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    th = np.radians(170.0)
+    R = np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * k @ k
+    u = v @ R.T
+    assert angle_deg(kabsch(u, v, np.ones(6)), R) < 1e-6
+    fit = fit_rotation(u + rng.normal(0, 1e-4, u.shape), v, np.full(6, 2e-8))
+    assert angle_deg(fit.R, R) < 0.02
+    # With noise of 1e-4 per axis and 6 directions, the standard error is about 1e-4 rad.
+    assert 0.001 < fit.std_total_deg < 0.03
+
+
+def test_a_low_range_triad_leaves_its_clipped_poses_out():
+    """A 0.97 g range clips the poses with an axis near vertical: those blocks are left out of
+    the rotation (flat at the limit is not gravity), the rest still give it."""
+    result, truth = _run(2, range_g=0.97)
+    a = result.triads[0].agreement
+    assert a is not None and a.blocks < 20
+    assert angle_deg(a.rotation.R, truth.triads[0].R) < 0.1
+
+
+def test_calib_json_holds_the_triads_section_and_the_report_says_it(runs):
+    result, truth = runs[0]
+    d = json.loads(json.dumps(result_to_dict(result)))
+    (entry,) = d["triads"]["triads"]
+    assert entry["accelerometer"] == "acc a2" and entry["gyroscope"] is None
+    R = np.array(entry["rotation_to_reference"])
+    assert angle_deg(R, truth.triads[0].R) < 0.05
+    assert entry["rotation_std_deg"]["total"] > 0
+    assert entry["agreement_mg"]["after_held_out"]["rms"] < 1.0
+    # Its own parameters: the second triad's scales within 0.3 % of its truth.
+    K = np.array(entry["segments"][0]["accelerometer"]["K"])
+    np.testing.assert_allclose(K, truth.triads[0].model.K, rtol=3e-3)
+    lines = [ln.text for ln in report(result).overview if ln.label == "triad"]
+    assert lines and "acc a2: turned 3.0" in lines[0]
+
+
+def test_one_triad_writes_no_triads_section():
+    session, _ = make_session(poses=12, seed=1)
+    result = calibrate(session)
+    assert calibrate_triads(result).triads == ()
+    assert "triads" not in result_to_dict(calibrate_triads(result))
+
+
+def test_a_triad_named_that_the_session_lacks_is_one_line(runs):
+    with pytest.raises(ImucalError, match="no other accelerometer triad 'a3'.*a2"):
+        calibrate_triads(runs[0][0], ["a3"])
