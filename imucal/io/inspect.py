@@ -49,6 +49,8 @@ class FileLines:
     streams: tuple[StreamLine, ...]
     notes: tuple[str, ...]
     error: str | None = None
+    # Several accelerometers: each as logged against the first (method.md §9), one line each.
+    imus: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -86,13 +88,25 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
                 picked, said = set(), (e.problem,)
             return FileLines(name, FORMATS[key][1],
                              tuple(_line(s, id(s) in picked) for s in streams.streams),
-                             streams.notes + said)
+                             streams.notes + said, imus=_imus(streams.streams, picked))
         sess = load_session(p, **load_kw)
         pair = _session_streams(sess)
         return FileLines(name, "table", tuple(_line(s, True) for s in pair)
                          + tuple(_line(s, False) for s in sess.others), sess.notes)
     except ImucalError as e:
         return FileLines(name, "", (), (), error=str(e))
+
+
+def _imus(streams: tuple[Stream, ...], picked: set[int]) -> tuple[str, ...]:
+    """Two or more accelerometers: each as logged against the one calibrate takes (method.md
+    §9); nothing for one."""
+    from imucal.stages.triads import logged_imus, logged_lines
+
+    accs = sorted((s for s in streams if s.kind == "acc" and s.samples),
+                  key=lambda s: id(s) not in picked)
+    if len(accs) < 2:
+        return ()
+    return tuple(logged_lines(logged_imus(accs, [s for s in streams if s.kind == "temp"])))
 
 
 def _session_streams(sess) -> list[Stream]:
@@ -123,6 +137,8 @@ def as_text(lines: FileLines) -> list[str]:
         out.append("  * taken by calibrate, apply, noise, view and batch unless --acc/--gyro "
                    "name others")
     out += [f"  note: {n}" for n in lines.notes]
+    if lines.imus:
+        out += [f"  {lines.imus[0]}:"] + [f"    {t}" for t in lines.imus[1:]]
     return out
 
 

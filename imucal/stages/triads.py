@@ -11,7 +11,7 @@ parameters and works for triads on different clocks, rates and units.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +19,8 @@ import numpy as np
 from imucal.models import acc_model
 from imucal.numerics import quaternion as quat
 from imucal.numerics.windows import samples_within
+from imucal.session import STANDARD_GRAVITY
+from imucal.streams import Stream
 
 # Fewest samples of a triad inside a reference block for its mean to count (method.md §9).
 MIN_SAMPLES = 2
@@ -261,31 +263,61 @@ class LoggedImu:
     temperature: float | None  # mean deg C, where the log has its temperature
     difference: float | None  # |mean - reference's mean| over the shared time, stream's unit
     shared_s: float  # the time both cover, s
+    frame: str | None = None  # the axis convention the log states for it
 
 
-def logged_disagreement(accs: list[tuple[str, np.ndarray, np.ndarray, str | None]],
-                        temps: dict[str, tuple[np.ndarray, np.ndarray]]) -> list[LoggedImu]:
-    """Each accelerometer ``(name, t, values, unit)`` against the first (the reference): the
-    means over the time both cover, and their difference. ``temps`` maps a name to its
-    temperature stream ``(t, values)``. A triad in g is compared in g, one in m/s² in m/s²:
-    a pair in different units is converted to the reference's."""
-    g = 9.80665
-    ref_name, t0, x0, unit0 = accs[0]
+def logged_imus(accs: Sequence[Stream], temps: Sequence[Stream]) -> list[LoggedImu]:
+    """Each accelerometer stream against the first (the reference, method.md §9 on a flight
+    log): the means over the time both cover and their difference, and each one's mean
+    temperature (a temperature stream of the same IMU, or of the same instance). A triad in g
+    against one in m/s² is converted to the reference's unit."""
+    ref = accs[0]
     out = []
-    for name, t, x, unit in accs:
-        temp = temps.get(name)
-        tmean = None if temp is None or len(temp[1]) == 0 else float(np.mean(temp[1]))
-        lo, hi = max(t0[0], t[0]), min(t0[-1], t[-1])
+    for acc in accs:
+        temp = [t for t in temps if t.instance == acc.instance
+                or (acc.imu is not None and t.imu == acc.imu)]
+        tmean = float(np.mean(temp[0].values)) if temp and temp[0].samples else None
+        lo, hi = max(ref.t[0], acc.t[0]), min(ref.t[-1], acc.t[-1])
+        mine = (acc.t >= lo) & (acc.t <= hi)
+        theirs = (ref.t >= lo) & (ref.t <= hi)
         diff, span = None, max(0.0, float(hi - lo))
-        mine = (t >= lo) & (t <= hi)
-        theirs = (t0 >= lo) & (t0 <= hi)
-        if name != ref_name and mine.any() and theirs.any():
+        if acc is ref:
+            diff = 0.0
+        elif mine.any() and theirs.any():
             scale = 1.0
-            if unit != unit0 and {unit, unit0} == {"g", "m/s^2"}:
-                scale = g if unit0 == "m/s^2" else 1.0 / g
-            diff = float(np.linalg.norm(x[mine].mean(axis=0) * scale - x0[theirs].mean(axis=0)))
-        elif name == ref_name:
-            diff, span = 0.0, float(t0[-1] - t0[0])
-        out.append(LoggedImu(name=name, samples=len(t), mean=x.mean(axis=0), unit=unit,
-                             temperature=tmean, difference=diff, shared_s=span))
+            if {acc.unit, ref.unit} == {"g", "m/s^2"}:
+                scale = STANDARD_GRAVITY if ref.unit == "m/s^2" else 1.0 / STANDARD_GRAVITY
+            diff = float(np.linalg.norm(acc.values[mine].mean(axis=0) * scale
+                                        - ref.values[theirs].mean(axis=0)))
+        out.append(LoggedImu(name=acc.name, samples=acc.samples, mean=acc.values.mean(axis=0),
+                             unit=acc.unit, temperature=tmean, difference=diff, shared_s=span,
+                             frame=acc.frame))
+    return out
+
+
+def logged_lines(imus: list[LoggedImu]) -> list[str]:
+    """The IMUs as logged, one line each, and why that is all a log of this kind can say."""
+    ref = imus[0]
+    out = [f"{len(imus)} accelerometers as logged, against {ref.name} (no calibration: a "
+           "recording without still poses in many orientations, a flight, cannot calibrate "
+           "them; record one and run imucal calibrate --all-imus)"]
+    for imu in imus:
+        unit = imu.unit or "raw"
+        temp = "" if imu.temperature is None else f", {imu.temperature:.1f} degC"
+        if imu is ref:
+            diff = "the reference"
+        elif imu.difference is None:
+            diff = "no time shared with the reference"
+        else:
+            arm = ""
+            if imu.unit in ("m/s^2", "g"):
+                limit = PX4_ARM_ACC_M_S2 / (STANDARD_GRAVITY if imu.unit == "g" else 1.0)
+                arm = (" (above PX4's 0.7 m/s^2 arming limit)" if imu.difference > limit
+                       else " (within PX4's 0.7 m/s^2 arming limit)")
+            diff = (f"differs from the reference by {imu.difference:.3g} {ref.unit or 'raw'} "
+                    f"over {imu.shared_s:.1f} s{arm}")
+            if imu.frame != ref.frame:  # a rotated frame differs by more than its errors
+                diff += f"; stated in another frame ({imu.frame or 'none stated'})"
+        mean = ", ".join(f"{v:.3f}" for v in imu.mean)
+        out.append(f"{imu.name}: {imu.samples} samples, mean ({mean}) {unit}{temp}; {diff}")
     return out
