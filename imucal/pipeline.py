@@ -38,6 +38,11 @@ from imucal.stages.sanity import (
     unwrap_session,
 )
 from imucal.stages.saturation import blocks_meeting, saturated_mask, saturated_runs
+from imucal.stages.temperature import (
+    block_temperatures,
+    fit_accel_bias_polynomial,
+    fit_bias_polynomial,
+)
 from imucal.stages.triads import (
     MIN_SHARED_BLOCKS,
     BlockMeans,
@@ -296,13 +301,16 @@ __all__ = ["Result", "Segment", "Settings", "calibrate", "select_points", "make_
 # --- several triads in one device (method.md §9) -----------------------------------------------
 
 
-def calibrate_triads(result: Result, which: Sequence[str] | str = "all") -> Result:
+def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
+                     temperature: bool = False) -> Result:
     """The run ``result`` with the session's other accelerometer triads (``Session.others``):
     each calibrated with the whole method on its own samples (with its own IMU's gyroscope where
     the session has one), and its rotation to ``result``'s triad, the reference, estimated from
     the reference's still blocks (M8, M9) with the triads' held-out agreement. ``which`` is
     ``"all"`` or the names of the triads to take (a stream's instance, its IMU, or its name). A
-    triad that cannot be calibrated is said in its ``said``, never stops the run."""
+    triad that cannot be calibrated is said in its ``said``, never stops the run. With
+    ``temperature``, each triad's bias in temperature too (:func:`calibrate_temperature`, on
+    its own IMU's temperature stream)."""
     session, settings = result.session, result.settings
     accs = [s for s in session.others if s.kind == "acc"]
     if which != "all":
@@ -322,8 +330,8 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all") -> Resu
     raw = interval_means(session.t_acc, lambda a, b: session.acc[a:b], result.block_times, 1.0)
     ref_raw = result.whole.nominal.to_nominal(raw.means)
     ref_models = _triad_models(result, raw.means, result.block_times)
-    triads = [_one_triad(session, settings, s, ref, ref_raw, ref_models, result.block_times)
-              for s in accs]
+    triads = [_one_triad(session, settings, s, ref, ref_raw, ref_models, result.block_times,
+                         temperature) for s in accs]
     return dataclasses.replace(result, triads=tuple(triads))
 
 
@@ -340,7 +348,8 @@ def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
 
 
 def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMeans,
-               ref_raw: np.ndarray, ref_models: TriadModels, block_times: np.ndarray) -> Triad:
+               ref_raw: np.ndarray, ref_models: TriadModels, block_times: np.ndarray,
+               temperature: bool) -> Triad:
     said: list[str] = []
     gyro = _gyro_partner(session, acc)
     sub = _triad_session(session, acc, gyro, said)
@@ -349,6 +358,8 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
     except ImucalError as e:
         said.append(f"{acc.name} not calibrated: {e.problem}")
         return Triad(acc.name, gyro.name if gyro else None, None, None, tuple(said))
+    if temperature:
+        res = calibrate_temperature(res)
     if res.verdict is not None and not res.verdict.usable:
         said.append(f"{acc.name}: its own calibration is not usable ({res.verdict.reason})")
     other = interval_means(sub.t_acc, functools.partial(res.calibration.rows, sub, "acc"),
@@ -397,9 +408,49 @@ def _triad_session(session: Session, acc: Stream, gyro: Stream | None,
             said.append(f"{gyro.name}: unit not stated, taken as the reference's ({g_unit})")
         if g_unit == "deg/s":
             g_values, g_unit = np.radians(g_values), "rad/s"
-    return Session(acc=acc.values, t_acc=acc.t, gyro=g_values,
+    temps = tuple(s for s in session.others if s.kind == "temp" and (
+        s.instance in (acc.instance, gyro.instance if gyro else None)
+        or (s.imu is not None and s.imu in (acc.imu, gyro.imu if gyro else None))))
+    return Session(acc=acc.values, t_acc=acc.t, gyro=g_values, others=temps,
                    t_gyro=None if gyro is None else gyro.t, acc_unit=acc_unit,
                    gyro_unit=g_unit if gyro is not None else "rad/s",
                    source=f"{session.source} [{acc.name}]", sha256=session.sha256,
                    notes=acc.notes + (gyro.notes if gyro is not None else ()),
                    chosen=tuple(f"{s.name} ({s.origin})" for s in (acc, gyro) if s is not None))
+
+
+# --- temperature (method.md §10) -----------------------------------------------------------------
+
+
+def calibrate_temperature(result: Result) -> Result:
+    """The run ``result`` with each sensor's bias a polynomial in temperature (M10, M11), from
+    the session's temperature stream (the one of the calibrated accelerometer's instance where
+    there are several), at each still block. A run the grouping (§2) split into segments is
+    calibrated again as one segment first, and said: with a temperature stream a bias that
+    drifts is the temperature's to explain. Without a temperature stream, or with too few
+    blocks, nothing is fitted (``Result.temperature`` stays empty). Run it before
+    :func:`calibrate_triads`, which fits each other triad's own with ``temperature=True``."""
+    session = result.session
+    temps = [s for s in session.others if s.kind == "temp" and s.samples >= 2]
+    if not temps:
+        return result
+    said: tuple[str, ...] = ()
+    if len(result.segments) > 1:
+        said = (f"the grouping split the recording into {len(result.segments)} segments where "
+                "the bias moved; with a temperature stream that drift is the temperature's, so "
+                "it was calibrated again as one segment",)
+        result = calibrate(session, dataclasses.replace(result.settings, single_segment=True))
+    named = session.chosen[0].split(" ")[1] if session.chosen else None
+    temp = next((s for s in temps if s.instance == named), temps[0])
+    block_t = block_temperatures(temp.t, temp.values, result.block_times)
+    det, fits = result.detection, []
+    models = [seg.acc.model for seg in result.segments for _ in range(seg.n_blocks)]
+    fits.append(fit_accel_bias_polynomial(block_t, det.means, models, result.calibration.g))
+    gyro_fit = result.segments[0].gyro
+    if session.has_gyro and gyro_fit is not None:
+        means = interval_means(session.t_gyro, lambda a, b: session.gyro[a:b],
+                               result.block_times, 1.0).means
+        fits.append(fit_bias_polynomial(block_t, means - gyro_fit.model.b, gyro_fit.model.b,
+                                        "gyroscope"))
+    fits = tuple(dataclasses.replace(f, notes=said + f.notes) for f in fits if f is not None)
+    return dataclasses.replace(result, temperature=fits)

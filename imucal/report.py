@@ -140,6 +140,7 @@ def _overview(result: Result) -> tuple[Line, ...]:
         Line("output", f"calibrated accelerometer in {cal.acc_unit} (|g| = {cal.g:g})"
                        + (", gyroscope in rad/s" if s.has_gyro else "")),
         *_triads(result),
+        *(Line("temperature", n) for f in result.temperature for n in f.notes),
     )
 
 

@@ -21,6 +21,7 @@ from imucal.stages.guide import Guide
 from imucal.stages.gyro import GyroFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
+from imucal.stages.temperature import BiasPolynomial
 from imucal.stages.triads import TriadAgreement
 from imucal.stages.verdict import Verdict
 from imucal.warning import RunWarning
@@ -89,6 +90,9 @@ class Result:
     # The session's other triads, each calibrated on its own and put in this run's frame
     # (method.md §9; imucal.pipeline.calibrate_triads); empty for a session of one triad.
     triads: tuple[Triad, ...] = ()
+    # Each sensor's bias as a polynomial in temperature (method.md §10;
+    # imucal.pipeline.calibrate_temperature); empty unless asked for and a stream is there.
+    temperature: tuple[BiasPolynomial, ...] = ()
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

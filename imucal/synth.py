@@ -37,6 +37,7 @@ class Truth:
     g: float = 1.0
     pose_times: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     triads: tuple[TriadTruth, ...] = ()  # the session's other accelerometer triads (§9)
+    temperature: TemperatureProfile | None = None  # the bias's drift with heat (§10)
 
     def to_dict(self) -> dict:
         def m(model: SensorModel | None) -> dict | None:
@@ -49,7 +50,61 @@ class Truth:
                 "t_change": self.t_change, "gyro_drift": self.gyro_drift.tolist(), "g": self.g,
                 "still_intervals": self.pose_times.tolist(),
                 "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"
-                } | ({"triads": [t.to_dict() for t in self.triads]} if self.triads else {})
+                } | ({"triads": [t.to_dict() for t in self.triads]} if self.triads else {}) | (
+                    {"temperature": self.temperature.to_dict()} if self.temperature else {})
+
+    def acc_bias_at(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the accelerometer's true bias (raw unit) at temperatures ``temp`` (M10)."""
+        extra = 0.0 if self.temperature is None else self.temperature.acc_drift(temp)
+        return self.acc.b + extra * self.g
+
+    def gyro_bias_at(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the gyroscope's true bias (rad/s) at temperatures ``temp`` (M10)."""
+        extra = 0.0 if self.temperature is None else self.temperature.gyro_drift(temp)
+        return self.gyro.b + extra
+
+
+@dataclass(frozen=True)
+class TemperatureProfile:
+    """The device's temperature over a session and what it does to the biases (method.md
+    §10, M10): a linear ramp from ``start`` to ``end`` deg C (``steps`` > 0: that many equal
+    steps instead), logged at ``rate`` Hz with ``noise`` deg C; the accelerometer's bias moves
+    by ``sum_j acc[j-1] (T - ref)^j`` g and the gyroscope's by ``sum_j gyro[j-1] (T - ref)^j``
+    rad/s, each a (p, 3) array of coefficients per deg C^j (p the true order)."""
+
+    start: float = 15.0
+    end: float = 45.0
+    acc: tuple[tuple[float, float, float], ...] = ((4e-4, -3e-4, 2e-4), (1e-5, 1.5e-5, -1e-5))
+    gyro: tuple[tuple[float, float, float], ...] = ((1e-4, -8e-5, 6e-5), (3e-6, -2e-6, 4e-6))
+    ref: float = 30.0
+    rate: float = 2.0
+    noise: float = 0.05
+    steps: int = 0
+
+    def at(self, t: np.ndarray, duration: float) -> np.ndarray:
+        """The true temperature at times ``t`` (deg C)."""
+        frac = np.clip(t / max(duration, 1e-9), 0.0, 1.0)
+        if self.steps > 0:
+            frac = np.minimum(np.floor(frac * self.steps), self.steps - 1) / max(self.steps - 1, 1)
+        return self.start + (self.end - self.start) * frac
+
+    @staticmethod
+    def _poly(coefs: tuple, temp: np.ndarray) -> np.ndarray:
+        c = np.asarray(coefs, float).reshape(-1, 3)
+        dt = np.asarray(temp, float).reshape(-1)
+        return sum(c[j][None, :] * dt[:, None] ** (j + 1) for j in range(len(c)))
+
+    def acc_drift(self, temp: np.ndarray) -> np.ndarray:
+        return self._poly(self.acc, np.asarray(temp) - self.ref)
+
+    def gyro_drift(self, temp: np.ndarray) -> np.ndarray:
+        return self._poly(self.gyro, np.asarray(temp) - self.ref)
+
+    def to_dict(self) -> dict:
+        return {"start_degC": self.start, "end_degC": self.end, "steps": self.steps,
+                "reference_degC": self.ref, "acc_bias_coefficients_g": [list(c) for c in self.acc],
+                "gyro_bias_coefficients_rad_s": [list(c) for c in self.gyro],
+                "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M10)"}
 
 
 @dataclass(frozen=True)
@@ -162,6 +217,7 @@ def make_session(
     gyro_unit: str = "rad/s",
     counts_per_rad_s: float = 939.65,
     second_acc: SecondTriad | None = None,
+    temperature: TemperatureProfile | None = None,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -177,7 +233,9 @@ def make_session(
     here: write it with ``write_session_mat(..., gyro_unit="deg/s")`` for a file in deg/s.
     ``second_acc`` adds a second accelerometer triad (``Session.others``, named ``a2`` as a
     table's a2x… columns are) and its truth (``Truth.triads``), drawn from a generator of its
-    own: the first triad and the gyroscope are the same as without it.
+    own: the first triad and the gyroscope are the same as without it. ``temperature`` makes
+    the biases drift with a temperature profile and adds its stream (``temp``, in
+    ``Session.others``); the noise drawn is the same as without it.
     """
     rng = np.random.default_rng(seed)
     motion = make_motion(rng, poses, still, move, init_still)
@@ -211,6 +269,15 @@ def make_session(
     raw_a += rng.normal(0, acc_noise, raw_a.shape)
     raw_g = _distort(w, t_g, gyro_truth, gyro2, t_change) + drift * t_g[:, None]
     raw_g += rng.normal(0, gyro_noise, raw_g.shape)
+    temp_stream = None
+    if temperature is not None:  # M10: the bias moves with heat, in g and rad/s
+        raw_a += temperature.acc_drift(temperature.at(t_a, duration))
+        raw_g += temperature.gyro_drift(temperature.at(t_g, duration))
+        t_t = np.arange(0.0, duration, 1.0 / temperature.rate)
+        heat = temperature.at(t_t, duration) + np.random.default_rng([seed, 3]).normal(
+            0, temperature.noise, len(t_t))
+        temp_stream = Stream("temp", "temp", t_t, heat[:, None], "degC",
+                             "synthetic temperature", time_source="the session's clock")
 
     g = 1.0
     if acc_unit == "m/s^2":
@@ -231,11 +298,16 @@ def make_session(
     if second_acc is not None:
         stream, tt = _second_triad(motion, second_acc, seed, acc_rate, acc_unit)
         others, triads = (stream,), (tt,)
+    if temp_stream is not None:
+        if acc_unit == "counts" or gyro_unit == "counts":
+            raise ValueError("a temperature profile is made in g or m/s^2 and rad/s")
+        others += (temp_stream,)
     session = Session(acc=raw_a, t_acc=t_a, gyro=raw_g, t_gyro=t_g, acc_unit=acc_unit,
                       gyro_unit="counts" if gyro_unit == "counts" else "rad/s",
                       source=f"synthetic(seed={seed}, poses={poses})", others=others)
     truth = Truth(acc=acc_truth, gyro=gyro_truth, acc2=acc2, gyro2=gyro2, t_change=t_change,
-                  gyro_drift=drift, g=g, pose_times=motion.still, triads=triads)
+                  gyro_drift=drift, g=g, pose_times=motion.still, triads=triads,
+                  temperature=temperature)
     return session, truth
 
 

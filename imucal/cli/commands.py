@@ -89,6 +89,10 @@ def calibrate(
         "--triad", metavar="NAME", help="Also calibrate this other accelerometer triad (a "
                                         "stream or IMU name; repeat for several), as "
                                         "--all-imus does for all.")] = None,
+    temperature: Annotated[bool, typer.Option(
+        "--temperature", help="Fit each sensor's bias as a polynomial in the file's temperature "
+                              "stream (order 0-3 by cross-validation; never extrapolated "
+                              "beyond the temperatures seen; method.md §10).")] = False,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -130,11 +134,19 @@ def calibrate(
             sess = imucal.load_session(session, **load_kw)
         with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
             result = imucal.calibrate(sess, **settings)
+        if temperature:
+            from imucal.pipeline import calibrate_temperature
+
+            result = calibrate_temperature(result)
+            if not result.temperature:
+                raise ImucalError("--temperature: the file holds no temperature stream (a "
+                                  "temp column, or a log's) covering the still poses",
+                                  source=str(session))
         if all_imus or triad:
             from imucal.pipeline import calibrate_triads
 
             with progress.stage("calibrating the other triads"):
-                result = calibrate_triads(result, "all" if all_imus else triad)
+                result = calibrate_triads(result, "all" if all_imus else triad, temperature)
         if limits is not None:
             result = _judged_by_spec(result, limits)
         if result.verdict is not None and not result.verdict.usable and not allow_poor:

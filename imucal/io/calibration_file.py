@@ -146,7 +146,22 @@ def result_to_dict(result: Result) -> dict:
         "guide": None if result.guide is None else result.guide.to_dict(),
         # The run judged (imucal.stages.verdict): level, the one reason, the next step.
         "verdict": None if result.verdict is None else result.verdict.to_dict(),
-    } | ({"triads": _triads_dict(result)} if result.triads else {})
+    } | ({"triads": _triads_dict(result)} if result.triads else {}) | (
+        {"temperature": _temperature_dict(result)} if result.temperature else {})
+
+
+def _temperature_dict(result: Result) -> dict:
+    """Each sensor's bias in temperature (method.md §10, M10); only written when fitted."""
+    out = {"model": "b(T) = b0 + sum_j coefficients[j] (T - reference_degC)^j, T held inside "
+                    "span_degC (never extrapolated), raw units per degC^j (method.md M10)"}
+    for f in result.temperature:
+        out[f.sensor] = {
+            "b0": _fl(f.b0), "reference_degC": _f(f.t0), "span_degC": [_f(f.span[0]),
+                                                                       _f(f.span[1])],
+            "order": f.order, "coefficients": _fl(f.coefs),
+            "cv_rms_by_order": [_f(v) if np.isfinite(v) else None for v in f.cv_rms],
+            "static_blocks": f.blocks, "notes": list(f.notes)}
+    return out
 
 
 def _triads_dict(result: Result) -> dict:
@@ -161,7 +176,8 @@ def _triads_dict(result: Result) -> dict:
             own = result_to_dict(tri.result)
             entry |= {"units": own["units"], "segments": own["segments"],
                       "quality": own["quality"], "verdict": own["verdict"],
-                      "warnings": own["warnings"]}
+                      "warnings": own["warnings"]} | (
+                {"temperature": own["temperature"]} if "temperature" in own else {})
         a = tri.agreement
         if a is not None:
             rot = a.rotation

@@ -56,3 +56,27 @@ def test_all_imus_writes_each_triad_and_its_rotation(tmp_path: Path):
     assert missing.returncode == 1
     assert "no other accelerometer triad 'a3'" in missing.stderr
     assert not (tmp_path / "x.json").exists()
+
+
+def test_temperature_from_a_temp_column(tmp_path: Path):
+    from imucal.synth import TemperatureProfile
+
+    session, truth = make_session(poses=30, seed=2, acc_rate=200.0,
+                                  temperature=TemperatureProfile())
+    temp = session.others[0]
+    table = {"t": session.t_acc, "temp": np.interp(session.t_acc, temp.t, temp.values[:, 0])}
+    for i, ax in enumerate("xyz"):
+        table[f"a{ax}"] = session.acc[:, i]
+        table[f"g{ax}"] = session.gyro[:, i]
+    pl.DataFrame(table).write_csv(tmp_path / "warm.csv")
+    pl.DataFrame({k: v for k, v in table.items() if k != "temp"}).write_csv(tmp_path / "no.csv")
+    warm = _imucal("calibrate", "warm.csv", "--out", "warm.json", "--temperature", cwd=tmp_path)
+    none = _imucal("calibrate", "no.csv", "--out", "no.json", "--temperature", cwd=tmp_path)
+    assert warm.returncode == 0, warm.stderr
+    d = json.loads((tmp_path / "warm.json").read_text())["temperature"]
+    assert d["accelerometer"]["order"] == 2 and d["gyroscope"]["order"] == 2
+    lo, hi = d["accelerometer"]["span_degC"]
+    assert lo < 16 and hi > 44
+    assert "bias of order 2 in temperature" in warm.stdout
+    assert none.returncode == 1 and "no temperature stream" in none.stderr
+    assert not (tmp_path / "no.json").exists()

@@ -1,0 +1,199 @@
+"""Temperature (method.md §10): a triad's bias as a polynomial in its temperature (M10), fitted
+to the still blocks after the constant-bias calibration (M11), its order (0-3) chosen by
+cross-validation over the blocks, and never extrapolated beyond the temperatures seen.
+
+The rest of the model (misalignment, scale) stays as §3 and §4 fitted it: PX4 assumes the same,
+and a session's still blocks hardly determine a scale's slope in temperature.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from imucal.models import SensorModel, acc_model, acc_theta
+from imucal.numerics.windows import samples_within
+
+ORDERS = (0, 1, 2, 3)
+# A span under this tells a slope from noise poorly (ArduPilot's limit for its own fit).
+MIN_SPAN_C = 10.0
+FOLDS = 5
+# The fewest-terms order whose held-out error is within this factor of the lowest wins.
+CV_TOLERANCE = 1.05
+
+
+def block_temperatures(t_temp: np.ndarray, temp: np.ndarray,
+                       block_times: np.ndarray) -> np.ndarray:
+    """(B,) each still block's temperature: the mean of the temperature samples inside its time
+    interval, or the temperature interpolated at its middle where none falls inside (a slow
+    thermometer), NaN where the block lies outside the stream's time."""
+    temp = np.asarray(temp, float).reshape(-1)
+    idx = samples_within(t_temp, block_times)
+    csum = np.concatenate([[0.0], np.cumsum(temp)])
+    n = idx[:, 1] - idx[:, 0]
+    inside = (csum[idx[:, 1]] - csum[idx[:, 0]]) / np.maximum(n, 1)
+    mid = block_times.mean(axis=1)
+    interp = np.interp(mid, t_temp, temp)
+    out = np.where(n > 0, inside, interp)
+    out[(mid < t_temp[0] - 1.0) | (mid > t_temp[-1] + 1.0)] = np.nan
+    return out
+
+
+@dataclass(frozen=True)
+class BiasPolynomial:
+    """M10 for one sensor: ``b(T) = b_0 + sum_j c_j (T - T_0)^j`` (``coefs[j]``, raw unit per
+    deg C^j, ``coefs[0]`` the constant's offset from ``b_0``), held at its end values outside
+    ``span``."""
+
+    sensor: str  # "accelerometer" or "gyroscope"
+    b0: np.ndarray  # (3,) the constant bias of M2 / M4, raw unit
+    t0: float  # deg C, the middle of the span
+    span: tuple[float, float]  # deg C, the still blocks' lowest and highest temperatures
+    order: int
+    coefs: np.ndarray  # (order + 1, 3)
+    cv_rms: np.ndarray  # (4,) held-out RMS of the bias per order 0-3 (NaN: not tried), raw
+    blocks: int
+    notes: tuple[str, ...] = ()
+
+    def bias_at(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the bias at temperatures ``temp``, constant outside the span (never
+        extrapolated, method.md §10)."""
+        x = np.clip(np.asarray(temp, float).reshape(-1), *self.span) - self.t0
+        return self.b0 + sum(self.coefs[j][None, :] * x[:, None] ** j
+                             for j in range(len(self.coefs)))
+
+    @property
+    def span_c(self) -> float:
+        return self.span[1] - self.span[0]
+
+
+def _design(x: np.ndarray, order: int) -> np.ndarray:
+    return np.vander(x, order + 1, increasing=True)
+
+
+def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
+                        sensor: str) -> BiasPolynomial | None:
+    """M10 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
+    at block temperatures ``temps`` (B,): the order by ``FOLDS``-fold cross-validation over
+    the blocks (sorted by temperature, every ``FOLDS``-th block in one fold, so each fold spans
+    the range and none is extrapolated); None without two blocks of known temperature."""
+    ok = np.isfinite(temps) & np.all(np.isfinite(d), axis=1)
+    temps, d = temps[ok], d[ok]
+    b = len(temps)
+    if b < 2:
+        return None
+    lo, hi = float(temps.min()), float(temps.max())
+    t0 = (lo + hi) / 2
+    half = max((hi - lo) / 2, 1e-6)
+    x = (temps - t0) / half  # on [-1, 1]: a well-conditioned Vandermonde matrix
+    fold = np.empty(b, int)
+    fold[np.argsort(temps, kind="stable")] = np.arange(b) % FOLDS
+    cv = np.full(len(ORDERS), np.nan)
+    for p in ORDERS:
+        if b - int(np.ceil(b / FOLDS)) < p + 2:  # each training set must over-determine it
+            break
+        err = np.empty_like(d)
+        for f in range(FOLDS):
+            test = fold == f
+            coef, *_ = np.linalg.lstsq(_design(x[~test], p), d[~test], rcond=None)
+            err[test] = d[test] - _design(x[test], p) @ coef
+        cv[p] = float(np.sqrt(np.mean(err**2)))
+    notes = []
+    if np.all(np.isnan(cv)):
+        order = 0
+        notes.append(f"{sensor}: {b} still blocks with a temperature: too few to choose an "
+                     "order, the bias is held constant at their mean")
+    else:
+        order = int(min(p for p in ORDERS if np.isfinite(cv[p])
+                        and cv[p] <= CV_TOLERANCE * np.nanmin(cv)))
+    coef, *_ = np.linalg.lstsq(_design(x, order), d, rcond=None)
+    coefs = coef / half ** np.arange(order + 1)[:, None]  # per deg C^j
+    if hi - lo < MIN_SPAN_C:
+        notes.append(f"{sensor}: the still blocks span only {hi - lo:.1f} deg C ({lo:.1f} to "
+                     f"{hi:.1f}), under the {MIN_SPAN_C:g} deg C that tell a slope from noise: "
+                     "the bias model holds for that span only and is not extrapolated (kept "
+                     "constant outside it); record over a wider temperature range")
+    else:
+        notes.append(f"{sensor}: bias of order {order} in temperature over {lo:.1f} to "
+                     f"{hi:.1f} deg C ({b} still blocks), held constant outside that span")
+    return BiasPolynomial(sensor=sensor, b0=np.asarray(b0, float), t0=t0, span=(lo, hi),
+                          order=order, coefs=coefs, cv_rms=cv, blocks=b, notes=tuple(notes))
+
+
+def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> np.ndarray:
+    """(B, 9) d|u_k| / d theta for u_k = T K (m_k - b) (M2), each block with its own parameters
+    (``params`` (B, 9)); central differences, a loop over the 9 parameters and the blocks."""
+    out = np.empty((len(means), 9))
+    for k, (m, p) in enumerate(zip(means, params)):
+        for j in range(9):
+            h = eps * max(1.0, abs(float(p[j])))
+            up, dn = p.copy(), p.copy()
+            up[j] += h
+            dn[j] -= h
+            out[k, j] = (np.linalg.norm(acc_model(up).apply(m[None])[0])
+                         - np.linalg.norm(acc_model(dn).apply(m[None])[0])) / (2 * h)
+    return out
+
+
+def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
+                              models: list[SensorModel], g: float) -> BiasPolynomial | None:
+    """M10 for an accelerometer. A still block says only how far its calibrated norm is from
+    ``|g|`` (M11 seen along gravity: a bias across gravity turns the vector and keeps its
+    norm), so the polynomial is fitted to the blocks' norm residuals, linearised at the §3
+    fit, together with a small correction of all of M2 (a drift the constant fit absorbed into
+    a scale is given back): ``|u_k| - |g| + J_k dtheta + sum_j a_k (T_k - T_0)^j . c_j = 0``,
+    ``a_k = d|u_k| / db``. The order is chosen as :func:`fit_bias_polynomial` does."""
+    ok = np.isfinite(temps)
+    temps, means = temps[ok], means[ok]
+    models = [m for m, keep in zip(models, ok) if keep]
+    b = len(temps)
+    if b < 10:
+        return None
+    params = np.array([acc_theta(m) for m in models])
+    r = np.array([np.linalg.norm(m.apply(x[None])[0]) for m, x in zip(models, means)]) - g
+    jac = _norm_jacobian(means, params)
+    lo, hi = float(temps.min()), float(temps.max())
+    t0 = (lo + hi) / 2
+    half = max((hi - lo) / 2, 1e-6)
+    x = (temps - t0) / half
+
+    def design(rows: np.ndarray, order: int) -> np.ndarray:
+        poly = [jac[rows, 6:9] * x[rows, None] ** j for j in range(1, order + 1)]
+        return np.hstack([jac[rows], *poly])
+
+    fold = np.empty(b, int)
+    fold[np.argsort(temps, kind="stable")] = np.arange(b) % FOLDS
+    cv = np.full(len(ORDERS), np.nan)
+    for p in ORDERS:
+        if b - int(np.ceil(b / FOLDS)) < 9 + 3 * p + 2:
+            break
+        err = np.empty(b)
+        for f in range(FOLDS):
+            test = fold == f
+            sol, *_ = np.linalg.lstsq(design(~test, p), -r[~test], rcond=None)
+            err[test] = r[test] + design(test, p) @ sol
+        cv[p] = float(np.sqrt(np.mean(err**2)))
+    notes = []
+    if np.all(np.isnan(cv)):
+        order = 0
+        notes.append(f"accelerometer: {b} still blocks with a temperature: too few to fit a "
+                     "bias in temperature beside M2's 9 parameters")
+    else:
+        order = int(min(p for p in ORDERS if np.isfinite(cv[p])
+                        and cv[p] <= CV_TOLERANCE * np.nanmin(cv)))
+    sol, *_ = np.linalg.lstsq(design(np.ones(b, bool), order), -r, rcond=None)
+    c = sol[9:].reshape(order, 3) / half ** np.arange(1, order + 1)[:, None]
+    coefs = np.vstack([sol[6:9][None, :], c])  # the constant's correction, then c_1..c_p
+    b0 = models[0].b
+    if hi - lo < MIN_SPAN_C:
+        notes.append(f"accelerometer: the still blocks span only {hi - lo:.1f} deg C ({lo:.1f} "
+                     f"to {hi:.1f}), under the {MIN_SPAN_C:g} deg C that tell a slope from "
+                     "noise: the bias model holds for that span only and is not extrapolated "
+                     "(kept constant outside it); record over a wider temperature range")
+    else:
+        notes.append(f"accelerometer: bias of order {order} in temperature over {lo:.1f} to "
+                     f"{hi:.1f} deg C ({b} still blocks), held constant outside that span")
+    return BiasPolynomial(sensor="accelerometer", b0=np.asarray(b0, float), t0=t0,
+                          span=(lo, hi), order=order, coefs=coefs, cv_rms=cv, blocks=b,
+                          notes=tuple(notes))

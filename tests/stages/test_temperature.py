@@ -1,0 +1,87 @@
+"""Temperature (method.md §10): each sensor's bias a polynomial in temperature (M10, M11), its
+order chosen by cross-validation, never extrapolated; on synthetic ramps with their truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from imucal.io.calibration_file import result_to_dict
+from imucal.pipeline import calibrate, calibrate_temperature
+from imucal.report import report
+from imucal.synth import TemperatureProfile, make_session
+
+LINEAR = TemperatureProfile(acc=((4e-4, -3e-4, 2e-4),), gyro=((1e-4, -8e-5, 6e-5),))
+QUADRATIC = TemperatureProfile()  # 15 to 45 deg C, 0.4 mg/degC and 0.01 mg/degC^2 or so
+CUBIC = TemperatureProfile(acc=((4e-4, -3e-4, 2e-4), (1e-5, 1.5e-5, -1e-5), (1e-6, -1e-6, 8e-7)),
+                           gyro=((1e-4, -8e-5, 6e-5), (3e-6, -2e-6, 4e-6), (4e-7, 3e-7, -3e-7)))
+
+
+def _fit(seed: int, profile: TemperatureProfile, **settings):
+    session, truth = make_session(poses=30, seed=seed, acc_rate=200.0, temperature=profile)
+    result = calibrate_temperature(calibrate(session, **settings))
+    return result, truth
+
+
+def _residuals(result, truth) -> tuple[float, float]:
+    """RMS bias error over temperatures the fit never saw (a fine grid across its span): mg
+    and deg/s."""
+    acc, gyro = result.temperature
+    grid = np.linspace(acc.span[0], acc.span[1], 301)
+    acc_mg = (acc.bias_at(grid) - truth.acc_bias_at(grid)) * truth.acc.K * 1e3
+    gyro_dps = np.degrees(gyro.bias_at(grid) - truth.gyro_bias_at(grid))
+    return float(np.sqrt(np.mean(acc_mg**2))), float(np.sqrt(np.mean(gyro_dps**2)))
+
+
+@pytest.mark.parametrize(("profile", "order"), [(LINEAR, 1), (QUADRATIC, 2), (CUBIC, 3)])
+def test_a_15_to_45_degC_ramp_gives_the_bias_within_1_mg_and_0_02_dps(profile, order):
+    orders = []
+    for seed in range(4):
+        result, truth = _fit(seed, profile, single_segment=True)
+        acc, gyro = result.temperature
+        assert acc.span[0] < 16 and acc.span[1] > 44
+        acc_mg, gyro_dps = _residuals(result, truth)
+        assert acc_mg <= 1.0 and gyro_dps <= 0.02, (seed, acc_mg, gyro_dps)
+        orders.append((acc.order, gyro.order))
+        # The constant model leaves several mg: the polynomial is what brings it under 1.
+        flat = np.ptp(truth.acc_bias_at(np.array([15.0, 45.0])) * 1e3, axis=0).max()
+        assert flat > 5.0
+    assert sum(a == order for a, _ in orders) >= 3 and sum(g == order for _, g in orders) >= 3
+
+
+def test_a_5_degC_span_is_said_and_not_extrapolated():
+    narrow = TemperatureProfile(start=28.0, end=33.0)
+    result, _ = _fit(1, narrow, single_segment=True)
+    acc, gyro = result.temperature
+    assert acc.span_c == pytest.approx(5.0, abs=0.3)
+    for fit in (acc, gyro):
+        assert any("span only" in n and "not extrapolated" in n for n in fit.notes)
+        edge = fit.bias_at(np.array([fit.span[1]]))
+        np.testing.assert_array_equal(fit.bias_at(np.array([45.0, 80.0])), np.vstack([edge] * 2))
+    said = [ln.text for ln in report(result).overview if ln.label == "temperature"]
+    assert any("under the 10 deg C" in t for t in said)
+
+
+def test_calib_json_holds_the_polynomials_only_when_fitted():
+    result, truth = _fit(2, QUADRATIC, single_segment=True)
+    d = json.loads(json.dumps(result_to_dict(result)))["temperature"]
+    assert d["accelerometer"]["order"] == 2 and len(d["accelerometer"]["coefficients"]) == 3
+    g = d["gyroscope"]
+    # The gyroscope's linear coefficient is the truth's c_1 about the span's middle.
+    t0 = g["reference_degC"]
+    c1 = np.array(QUADRATIC.gyro[0]) + 2 * np.array(QUADRATIC.gyro[1]) * (t0 - QUADRATIC.ref)
+    np.testing.assert_allclose(g["coefficients"][1], c1, atol=1e-5)
+    plain, _ = make_session(poses=12, seed=1)
+    assert "temperature" not in result_to_dict(calibrate_temperature(calibrate(plain)))
+
+
+def test_a_run_split_by_the_drift_is_calibrated_again_as_one_segment():
+    result, truth = _fit(0, QUADRATIC)  # the grouping splits this one where the bias moved
+    assert len(result.segments) == 1
+    assert "calibrated again as one segment" in result.temperature[0].notes[0]
+    acc_mg, gyro_dps = _residuals(result, truth)
+    assert acc_mg <= 1.0 and gyro_dps <= 0.02
+    assert len(calibrate(make_session(poses=30, seed=0, acc_rate=200.0,
+                                      temperature=QUADRATIC)[0]).segments) > 1
