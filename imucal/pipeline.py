@@ -45,10 +45,15 @@ from imucal.stages.temperature import (
 )
 from imucal.stages.triads import (
     MIN_SHARED_BLOCKS,
+    MIN_TURN_DEG,
     BlockMeans,
+    GyroTurns,
     TriadModels,
+    gyro_agreement,
+    gyro_model_from,
     interval_means,
     triad_agreement,
+    turn_rotvecs,
 )
 from imucal.stages.verdict import SegmentFigures, judge
 from imucal.streams import Stream
@@ -330,8 +335,9 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
     raw = interval_means(session.t_acc, lambda a, b: session.acc[a:b], result.block_times, 1.0)
     ref_raw = result.whole.nominal.to_nominal(raw.means)
     ref_models = _triad_models(result, raw.means, result.block_times)
+    ref_turns = _turns(result, session, result.block_times)
     triads = [_one_triad(session, settings, s, ref, ref_raw, ref_models, result.block_times,
-                         temperature) for s in accs]
+                         temperature, ref_turns) for s in accs]
     return dataclasses.replace(result, triads=tuple(triads))
 
 
@@ -349,7 +355,7 @@ def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
 
 def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMeans,
                ref_raw: np.ndarray, ref_models: TriadModels, block_times: np.ndarray,
-               temperature: bool) -> Triad:
+               temperature: bool, ref_turns: GyroTurns | None) -> Triad:
     said: list[str] = []
     gyro = _gyro_partner(session, acc)
     sub = _triad_session(session, acc, gyro, said)
@@ -372,10 +378,44 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
         said.append(f"{acc.name}: fewer than {MIN_SHARED_BLOCKS} of the reference's still blocks "
                     "in two directions hold its samples; its rotation to the reference is not "
                     "estimated")
-    if gyro is not None:
-        said.append(f"{gyro.name}: calibrated with {acc.name}, in its own frame (its rotation to "
-                    "the reference from the turns is not estimated yet)")
+    other_turns = _turns(res, sub, block_times)
+    if agreement is not None and ref_turns is not None and other_turns is not None:
+        g = gyro_agreement(ref_turns, other_turns, agreement.rotation.R)
+        agreement = dataclasses.replace(agreement, gyro=g)
+        if g is None:
+            said.append(f"{gyro.name}: fewer than {MIN_SHARED_BLOCKS} turns of "
+                        f"{MIN_TURN_DEG:g} deg or more in two directions; its rotation to the "
+                        "reference is not estimated (it is in its own frame)")
+    elif gyro is not None:
+        said.append(f"{gyro.name}: calibrated with {acc.name}, in its own frame (no rotation to "
+                    "the reference without "
+                    f"{'a reference gyroscope' if ref_turns is None else 'its own fit'})")
     return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said))
+
+
+def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTurns | None:
+    """The turns between the reference's still blocks as ``result``'s calibrated gyroscope
+    measures them (each turn with its segment's model; M12); None without a calibrated
+    gyroscope or with fewer than two blocks."""
+    segs = result.segments
+    if not session.has_gyro or any(s.gyro is None for s in segs) or len(block_times) < 2:
+        return None
+    mid = (block_times[:-1, 1] + block_times[1:, 0]) / 2
+    spans = np.array([[s.t_start, s.t_end] for s in segs])
+    outside = np.maximum(spans[None, :, 0] - mid[:, None], mid[:, None] - spans[None, :, 1])
+    which = np.argmin(outside, axis=1)
+    params = tuple(s.gyro.params for s in segs)
+    # std of the scales is relative to the nominal scale (gyro_model_of): in raw units here.
+    stds = tuple(np.r_[s.gyro.std[:6], s.gyro.std[6:9] * s.gyro.nominal_scale] for s in segs)
+
+    def turns(seg: int | None, p: np.ndarray | None) -> np.ndarray:
+        models = [segs[i].gyro.model if i != seg else gyro_model_from(p, segs[i].gyro.model.b)
+                  for i in range(len(segs))]
+        M = np.array([models[i].matrix for i in which])
+        b = np.array([models[i].b for i in which])
+        return turn_rotvecs(session.gyro, session.t_gyro, block_times, M, b)
+
+    return GyroTurns(turns=turns, params=params, stds=stds)
 
 
 def _gyro_partner(session: Session, acc: Stream) -> Stream | None:

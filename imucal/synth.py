@@ -121,6 +121,8 @@ class SecondTriad:
     mis: float = 0.01
     scale: float = 0.03
     bias: float = 0.05
+    gyro: bool = False  # a gyroscope in the same IMU (its frame the triad's), named g2
+    gyro_noise: float = 0.004  # rad/s per sample
 
 
 @dataclass(frozen=True)
@@ -132,11 +134,14 @@ class TriadTruth:
     R: np.ndarray  # (3, 3) to the first triad's frame
     range: float  # clipping level, in the raw unit
     noise: float  # per sample, g
+    gyro: SensorModel | None = None  # M4 of its IMU's gyroscope (rad/s), if it has one
 
     def to_dict(self) -> dict:
+        g = None if self.gyro is None else {"T": self.gyro.T.tolist(), "K": self.gyro.K.tolist(),
+                                            "b": self.gyro.b.tolist()}
         return {"name": self.name, "T": self.model.T.tolist(), "K": self.model.K.tolist(),
                 "b": self.model.b.tolist(), "rotation_to_reference": self.R.tolist(),
-                "range": self.range, "noise_g": self.noise}
+                "range": self.range, "noise_g": self.noise, "gyroscope": g}
 
 
 def random_acc_model(rng: np.random.Generator, mis: float = 0.01, scale: float = 0.03,
@@ -296,8 +301,8 @@ def make_session(
 
     others, triads = (), ()
     if second_acc is not None:
-        stream, tt = _second_triad(motion, second_acc, seed, acc_rate, acc_unit)
-        others, triads = (stream,), (tt,)
+        streams, tt = _second_triad(motion, second_acc, seed, acc_rate, acc_unit)
+        others, triads = streams, (tt,)
     if temp_stream is not None:
         if acc_unit == "counts" or gyro_unit == "counts":
             raise ValueError("a temperature profile is made in g or m/s^2 and rad/s")
@@ -312,8 +317,9 @@ def make_session(
 
 
 def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
-                  acc_unit: str) -> tuple[Stream, TriadTruth]:
-    """The second accelerometer's stream and truth (method.md §9, M8: ``u = R v``)."""
+                  acc_unit: str) -> tuple[tuple[Stream, ...], TriadTruth]:
+    """The second accelerometer's stream (and its gyroscope's) and truth (method.md §9, M8:
+    ``u = R v``; the gyroscope in the same frame, so M12's rotation is ``R`` too)."""
     if acc_unit not in ("g", "m/s^2"):
         raise ValueError(f"a second triad is made in g or m/s^2, not {acc_unit!r}")
     rng = np.random.default_rng([seed, 2])
@@ -324,17 +330,23 @@ def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
     rate = spec.rate or acc_rate
     duration = float(motion.still[-1, 1])
     t = (rng.uniform(0, 1) + np.arange(int(duration * rate) - 1)) / rate
-    q, _ = motion.at(t)
+    q, w = motion.at(t)
     v = quat.rotate_inverse(q, np.array([0.0, 0.0, 1.0])) @ R  # v = R' u, row by row
     raw = model.invert(v) + rng.normal(0, spec.noise, v.shape)
     raw = np.clip(raw, -spec.range_g, spec.range_g)  # the triad's range: flat beyond it
     g = STANDARD_GRAVITY if acc_unit == "m/s^2" else 1.0
     raw *= g
     model = _rescale(model, g, 0.0, g)
-    stream = Stream("acc", "a2", t, raw, acc_unit, "synthetic second accelerometer (a2x, a2y, "
-                    "a2z)", time_source="its own clock")
-    return stream, TriadTruth(name="a2", model=model, R=R, range=spec.range_g * g,
-                              noise=spec.noise)
+    streams = (Stream("acc", "a2", t, raw, acc_unit, "synthetic second accelerometer (a2x, "
+                      "a2y, a2z)", time_source="its own clock"),)
+    gyro = None
+    if spec.gyro:  # drawn after everything above: the accelerometer is the same without it
+        gyro = random_gyro_model(rng)
+        raw_g = gyro.invert(w @ R) + rng.normal(0, spec.gyro_noise, w.shape)
+        streams += (Stream("gyro", "g2", t, raw_g, "rad/s", "synthetic second gyroscope (g2x, "
+                           "g2y, g2z)", time_source="its own clock"),)
+    return streams, TriadTruth(name="a2", model=model, R=R, range=spec.range_g * g,
+                               noise=spec.noise, gyro=gyro)
 
 
 def _distort(ideal: np.ndarray, t: np.ndarray, m1: SensorModel, m2: SensorModel | None,

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imucal.models import acc_model
+from imucal.models import SensorModel, acc_model
 from imucal.numerics import quaternion as quat
 from imucal.numerics.windows import samples_within
 from imucal.session import STANDARD_GRAVITY
@@ -105,10 +105,12 @@ class RotationFit:
 
 
 def fit_rotation(u: np.ndarray, v: np.ndarray, s2: np.ndarray,
-                 start: np.ndarray | None = None, iterations: int = 8) -> RotationFit:
+                 start: np.ndarray | None = None, iterations: int = 8,
+                 empirical: bool = False) -> RotationFit:
     """``u_k = R v_k + e_k`` (M8) by Kabsch then Gauss–Newton on ``R = R_0 exp([delta]x)``
     (M9); the covariance ``c (J' W J)^-1`` from the Jacobian, ``c`` the reduced chi-square
-    where it exceeds 1 (the triads' own calibration errors then count in it)."""
+    where it exceeds 1 (the triads' own calibration errors then count in it); ``empirical``:
+    ``c`` the reduced chi-square whatever its size (``s2`` then only weighs the pairs)."""
     w = 1.0 / s2
     r0 = kabsch(u, v, w) if start is None else start
     jtwj = np.eye(3)
@@ -125,7 +127,7 @@ def fit_rotation(u: np.ndarray, v: np.ndarray, s2: np.ndarray,
     dof = max(3 * len(u) - 3, 1)
     jac = r0[None] @ _skew(v)
     jtwj = np.einsum("k,kij,kil->jl", w, jac, jac)
-    cov_body = np.linalg.inv(jtwj) * max(1.0, chi2 / dof)
+    cov_body = np.linalg.inv(jtwj) * (chi2 / dof if empirical else max(1.0, chi2 / dof))
     # R exp([d]x) = exp([R d]x) R: the error about the reference's axes is R d.
     return RotationFit(R=r0, cov=r0 @ cov_body @ r0.T, chi2=chi2, dof=dof)
 
@@ -145,6 +147,7 @@ class TriadAgreement:
     held_out_mg: np.ndarray  # (blocks,) |u_k - R_(-k) v_k| with block k held out, mg
     before_mg: np.ndarray  # (blocks,) |u_k - v_k| of the raw means in the nominal frame, mg
     used: np.ndarray  # (B,) True on the reference's blocks both triads saw
+    gyro: GyroAgreement | None = None  # its IMU's gyroscope against the reference's (M12)
 
     @property
     def held_out_rms_mg(self) -> float:
@@ -246,6 +249,102 @@ def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
         held[k] = np.linalg.norm(u[k] - rk @ v[k]) * 1e3
     before = np.linalg.norm(ref_raw[used] - other_raw[used], axis=1) * 1e3
     return TriadAgreement(rotation=fit, blocks=n, held_out_mg=held, before_mg=before, used=used)
+
+
+# --- gyroscopes: the rotation from the turns (method.md §9, M12) --------------------------------
+
+# Turns smaller than this say little about an axis (their rotation vector is mostly noise).
+MIN_TURN_DEG = 10.0
+
+
+@dataclass(frozen=True)
+class GyroAgreement:
+    """Another gyroscope against the reference's, from the turns both measured (M12)."""
+
+    rotation: RotationFit
+    turns: int  # turns used
+    residual_deg: np.ndarray  # (turns,) |r_ref - R r_other| per turn, deg
+    accel_difference_deg: float | None  # angle between this and its IMU's accelerometer's
+
+    @property
+    def residual_rms_deg(self) -> float:
+        return float(np.sqrt(np.mean(self.residual_deg**2)))
+
+
+def turn_rotvecs(x: np.ndarray, t: np.ndarray, block_times: np.ndarray, M: np.ndarray,
+                 b: np.ndarray) -> np.ndarray:
+    """(K, 3) each turn's rotation vector (rad): the calibrated rates ``M[k] (x - b[k])`` (M4,
+    each turn its own model, ``M`` (K, 3, 3), ``b`` (K, 3)) integrated by RK4 from the end of
+    still block k to the start of block k+1 on the gyroscope's own clock."""
+    from imucal.numerics.rk4.intervals import Intervals
+    from imucal.stages.gyro_transitions import transition_samples
+
+    s, e = transition_samples(t, block_times)
+    q = Intervals(x, t, s, e).integrate_each(M, b)
+    return quat.to_rotvec(q)
+
+
+def gyro_model_from(p: np.ndarray, b: np.ndarray) -> SensorModel:
+    """The M4 model of :func:`imucal.models.gyro_theta`'s 9 numbers (T's off-diagonals row by
+    row, then K) and a bias."""
+    T = np.eye(3)
+    T[0, 1], T[0, 2], T[1, 0], T[1, 2], T[2, 0], T[2, 1] = p[:6]
+    return SensorModel(T=T, K=np.asarray(p[6:9], float), b=np.asarray(b, float))
+
+
+@dataclass(frozen=True)
+class GyroTurns:
+    """One triad's gyroscope as M12 sees it: ``turns(s, p)`` the (K, 3) turn rotation vectors
+    with segment ``s``'s 9 parameters replaced by ``p`` (None, None: the fit's own), and each
+    segment's parameters and their standard errors (raw units)."""
+
+    turns: Callable[[int | None, np.ndarray | None], np.ndarray]
+    params: tuple[np.ndarray, ...]
+    stds: tuple[np.ndarray, ...]
+
+
+def _propagated_turn_cov(g: GyroTurns, which: int, u: np.ndarray, v: np.ndarray,
+                         ok: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(3, 3) the rotation's covariance from one gyroscope's own M4 errors: each parameter
+    moved a little, the turns integrated again and M12 refitted (their standard errors only:
+    the fit reports no correlations)."""
+    base = g.turns(None, None)[ok]
+    out = np.zeros((3, 3))
+    for s, (p, sd) in enumerate(zip(g.params, g.stds)):
+        jac = np.zeros((3, 9))
+        for j in range(9):  # 9 integrations of the turns per segment, a loop over parameters
+            eps = 1e-6 * max(1.0, abs(float(p[j])))
+            moved = p.copy()
+            moved[j] += eps
+            d = g.turns(s, moved)[ok] - base
+            uu, vv = (u + d, v) if which == 0 else (u, v + d)
+            r2 = fit_rotation(uu, vv, np.ones(len(u)), start=R, iterations=2).R
+            dr = r2 @ R.T
+            jac[:, j] = np.array([dr[2, 1] - dr[1, 2], dr[0, 2] - dr[2, 0],
+                                  dr[1, 0] - dr[0, 1]]) / (2 * eps)
+        out += jac @ np.diag(sd**2) @ jac.T
+    return out
+
+
+def gyro_agreement(ref: GyroTurns, other: GyroTurns,
+                   accel_R: np.ndarray | None = None) -> GyroAgreement | None:
+    """``r_ref,k = R r_other,k`` (M12) over the turns of at least :data:`MIN_TURN_DEG` in both
+    by Kabsch and Gauss–Newton (:func:`fit_rotation`); the covariance from the residuals'
+    scatter and each gyroscope's own M4 errors. None with fewer than
+    :data:`MIN_SHARED_BLOCKS` turns in two directions."""
+    r_ref, r_other = ref.turns(None, None), other.turns(None, None)
+    big = np.radians(MIN_TURN_DEG)
+    ok = (np.linalg.norm(r_ref, axis=1) > big) & (np.linalg.norm(r_other, axis=1) > big)
+    u, v = r_ref[ok], r_other[ok]
+    if len(u) < MIN_SHARED_BLOCKS or np.linalg.matrix_rank(u, tol=0.05 * big) < 2:
+        return None
+    fit = fit_rotation(u, v, np.ones(len(u)), empirical=True)
+    for k, g in enumerate((ref, other)):
+        fit = dataclasses.replace(fit, cov=fit.cov + _propagated_turn_cov(g, k, u, v, ok, fit.R))
+    res = np.degrees(np.linalg.norm(u - v @ fit.R.T, axis=1))
+    diff = None if accel_R is None else angle_deg(fit.R, accel_R)
+    return GyroAgreement(rotation=fit, turns=len(u), residual_deg=res,
+                         accel_difference_deg=diff)
 
 
 # --- a log that calibrates nothing: the IMUs as logged ------------------------------------------

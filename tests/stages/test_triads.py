@@ -27,7 +27,9 @@ def _run(seed: int, **spec):
 
 @pytest.fixture(scope="module")
 def runs():
-    return [_run(seed) for seed in SEEDS]
+    """12 sessions of two IMUs (the second's accelerometer at 400 Hz on its own clock, 8 g
+    range, twice the noise, with a gyroscope of its own; both turned 3 deg from the first)."""
+    return [_run(seed, gyro=True) for seed in SEEDS]
 
 
 def test_rotation_to_the_reference_within_0_05_deg_of_the_truth_from_20_poses(runs):
@@ -61,6 +63,21 @@ def test_the_triads_agree_within_1_mg_on_held_out_blocks_after_calibration(runs)
         assert a.before_rms_mg > 30.0
 
 
+def test_the_gyroscopes_rotation_from_the_turns_is_the_imus_and_honest(runs):
+    """M12: the second IMU's gyroscope turned as its accelerometer is (the truth's R), within
+    0.05 deg, its 1-sigma within 1.5x of the error over seeds, and near the accelerometers'."""
+    err, sd = [], []
+    for result, truth in runs:
+        g = result.triads[0].agreement.gyro
+        assert g is not None and g.turns == 19  # every turn between the 20 poses
+        err.append(angle_deg(g.rotation.R, truth.triads[0].R))
+        sd.append(g.rotation.std_total_deg)
+        assert g.accel_difference_deg < 0.05
+    assert max(err) < 0.05, err
+    ratio = float(np.sqrt(np.mean(np.square(err))) / np.sqrt(np.mean(np.square(sd))))
+    assert 1 / 1.5 < ratio < 1.5, (ratio, err, sd)
+
+
 def test_wahba_then_gauss_newton_recovers_a_large_rotation_exactly():
     rng = np.random.default_rng(3)
     v = rng.normal(size=(6, 3))
@@ -81,6 +98,7 @@ def test_a_low_range_triad_leaves_its_clipped_poses_out():
     """A 0.97 g range clips the poses with an axis near vertical: those blocks are left out of
     the rotation (flat at the limit is not gravity), the rest still give it."""
     result, truth = _run(2, range_g=0.97)
+    assert result.triads[0].gyro is None  # an accelerometer alone: calibrated without one
     a = result.triads[0].agreement
     assert a is not None and a.blocks < 20
     assert angle_deg(a.rotation.R, truth.triads[0].R) < 0.1
@@ -90,7 +108,10 @@ def test_calib_json_holds_the_triads_section_and_the_report_says_it(runs):
     result, truth = runs[0]
     d = json.loads(json.dumps(result_to_dict(result)))
     (entry,) = d["triads"]["triads"]
-    assert entry["accelerometer"] == "acc a2" and entry["gyroscope"] is None
+    assert entry["accelerometer"] == "acc a2" and entry["gyroscope"] == "gyro g2"
+    gr = entry["gyroscope_rotation"]
+    assert angle_deg(np.array(gr["rotation_to_reference"]), truth.triads[0].R) < 0.05
+    assert gr["turns"] == 19 and gr["rotation_std_deg"]["total"] > 0
     R = np.array(entry["rotation_to_reference"])
     assert angle_deg(R, truth.triads[0].R) < 0.05
     assert entry["rotation_std_deg"]["total"] > 0
@@ -100,6 +121,7 @@ def test_calib_json_holds_the_triads_section_and_the_report_says_it(runs):
     np.testing.assert_allclose(K, truth.triads[0].model.K, rtol=3e-3)
     lines = [ln.text for ln in report(result).overview if ln.label == "triad"]
     assert lines and "acc a2: turned 3.0" in lines[0]
+    assert "gyro g2: turned 3.0" in lines[1] and "from its accelerometer's rotation" in lines[1]
 
 
 def test_one_triad_writes_no_triads_section():
