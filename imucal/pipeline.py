@@ -333,6 +333,7 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
     ref = interval_means(session.t_acc, functools.partial(result.calibration.rows, session, "acc"),
                          result.block_times, g_ref)
     raw = interval_means(session.t_acc, lambda a, b: session.acc[a:b], result.block_times, 1.0)
+    ref = _with_temperature(result, ref, raw.means, result.block_times)
     ref_raw = result.whole.nominal.to_nominal(raw.means)
     ref_models = _triad_models(result, raw.means, result.block_times)
     ref_turns = _turns(result, session, result.block_times)
@@ -348,9 +349,14 @@ def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
     mid = block_times.mean(axis=1)
     spans = np.array([[s.t_start, s.t_end] for s in result.segments])
     outside = np.maximum(spans[None, :, 0] - mid[:, None], mid[:, None] - spans[None, :, 1])
+    covs = tuple(s.acc.cov for s in result.segments)
+    fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
+    if fit is not None and fit.cov is not None and len(covs) == 1:
+        # The constant fit's covariance holds the drift it could not model; M11's does not.
+        covs = (fit.cov,)
     return TriadModels(raw_means=raw_means, segment_of_block=np.argmin(outside, axis=1),
                        params=tuple(s.acc.params for s in result.segments),
-                       covs=tuple(s.acc.cov for s in result.segments), g=result.calibration.g)
+                       covs=covs, g=result.calibration.g)
 
 
 def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMeans,
@@ -371,6 +377,7 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
     other = interval_means(sub.t_acc, functools.partial(res.calibration.rows, sub, "acc"),
                            block_times, res.calibration.g, clipped=saturated_mask(sub.acc))
     raw = interval_means(sub.t_acc, lambda a, b: sub.acc[a:b], block_times, 1.0)
+    other = _with_temperature(res, other, raw.means, block_times)
     other_raw = res.whole.nominal.to_nominal(raw.means)
     agreement = triad_agreement(ref, other, ref_raw, other_raw, ref_models,
                                 _triad_models(res, raw.means, block_times))
@@ -418,6 +425,31 @@ def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTur
     return GyroTurns(turns=turns, params=params, stds=stds)
 
 
+def _with_temperature(result: Result, means: BlockMeans, raw_means: np.ndarray,
+                      block_times: np.ndarray) -> BlockMeans:
+    """The calibrated block means with the bias at each block's temperature (M10) where the
+    run fitted one for its accelerometer: a triad compared at the temperature it was at."""
+    fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
+    stream = _temp_stream(result.session)
+    if fit is None or fit.model is None or stream is None:
+        return means
+    temps = block_temperatures(stream.t, stream.values, block_times)
+    ok = np.isfinite(temps) & np.isfinite(means.var)
+    out = means.means.copy()
+    out[ok] = fit.calibrated(raw_means[ok], temps[ok]) / result.calibration.g
+    return dataclasses.replace(means, means=out)
+
+
+def _temp_stream(session: Session) -> Stream | None:
+    """The session's temperature stream: the one of the calibrated accelerometer's instance
+    where there are several, else the first; None without one."""
+    temps = [s for s in session.others if s.kind == "temp" and s.samples >= 2]
+    if not temps:
+        return None
+    named = session.chosen[0].split(" ")[1] if session.chosen else None
+    return next((s for s in temps if s.instance == named), temps[0])
+
+
 def _gyro_partner(session: Session, acc: Stream) -> Stream | None:
     """The gyroscope of the accelerometer's IMU (a log's), or a table's g2x… beside a2x…."""
     gyros = [s for s in session.others if s.kind == "gyro"]
@@ -451,6 +483,9 @@ def _triad_session(session: Session, acc: Stream, gyro: Stream | None,
     temps = tuple(s for s in session.others if s.kind == "temp" and (
         s.instance in (acc.instance, gyro.instance if gyro else None)
         or (s.imu is not None and s.imu in (acc.imu, gyro.imu if gyro else None))))
+    device = [s for s in session.others if s.kind == "temp"]
+    if not temps and len(device) == 1 and device[0].imu is None:
+        temps = tuple(device)  # one thermometer of no IMU (a table's temp): the device's
     return Session(acc=acc.values, t_acc=acc.t, gyro=g_values, others=temps,
                    t_gyro=None if gyro is None else gyro.t, acc_unit=acc_unit,
                    gyro_unit=g_unit if gyro is not None else "rad/s",
@@ -471,8 +506,8 @@ def calibrate_temperature(result: Result) -> Result:
     blocks, nothing is fitted (``Result.temperature`` stays empty). Run it before
     :func:`calibrate_triads`, which fits each other triad's own with ``temperature=True``."""
     session = result.session
-    temps = [s for s in session.others if s.kind == "temp" and s.samples >= 2]
-    if not temps:
+    temp = _temp_stream(session)
+    if temp is None:
         return result
     said: tuple[str, ...] = ()
     if len(result.segments) > 1:
@@ -480,8 +515,6 @@ def calibrate_temperature(result: Result) -> Result:
                 "the bias moved; with a temperature stream that drift is the temperature's, so "
                 "it was calibrated again as one segment",)
         result = calibrate(session, dataclasses.replace(result.settings, single_segment=True))
-    named = session.chosen[0].split(" ")[1] if session.chosen else None
-    temp = next((s for s in temps if s.instance == named), temps[0])
     block_t = block_temperatures(temp.t, temp.values, result.block_times)
     det, fits = result.detection, []
     models = [seg.acc.model for seg in result.segments for _ in range(seg.n_blocks)]

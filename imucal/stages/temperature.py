@@ -55,6 +55,18 @@ class BiasPolynomial:
     cv_rms: np.ndarray  # (4,) held-out RMS of the bias per order 0-3 (NaN: not tried), raw
     blocks: int
     notes: tuple[str, ...] = ()
+    # The accelerometer's M2 with the small correction M11 fitted beside the polynomial (its
+    # misalignments and scales; its bias b0): the model b(T) belongs to. None: the fit's own.
+    model: SensorModel | None = None
+    # (9, 9) the covariance of that model's parameters from the same fit (its residuals'
+    # scatter): what the rotation between triads propagates (M9) once temperature is modelled.
+    cov: np.ndarray | None = None
+
+    def calibrated(self, raw: np.ndarray, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) ``T K (raw - b(T))`` (M2 with M10's bias) of raw readings at temperatures
+        ``temp``; needs :attr:`model`."""
+        m = self.model
+        return (np.asarray(raw, float) - self.bias_at(temp)) @ m.matrix.T
 
     def bias_at(self, temp: np.ndarray) -> np.ndarray:
         """(N, 3) the bias at temperatures ``temp``, constant outside the span (never
@@ -182,10 +194,14 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
     else:
         order = int(min(p for p in ORDERS if np.isfinite(cv[p])
                         and cv[p] <= CV_TOLERANCE * np.nanmin(cv)))
-    sol, *_ = np.linalg.lstsq(design(np.ones(b, bool), order), -r, rcond=None)
+    full = design(np.ones(b, bool), order)
+    sol, *_ = np.linalg.lstsq(full, -r, rcond=None)
+    dof = max(b - full.shape[1], 1)
+    cov = np.linalg.pinv(full.T @ full)[:9, :9] * float(np.sum((r + full @ sol) ** 2)) / dof
     c = sol[9:].reshape(order, 3) / half ** np.arange(1, order + 1)[:, None]
     coefs = np.vstack([sol[6:9][None, :], c])  # the constant's correction, then c_1..c_p
     b0 = models[0].b
+    corrected = acc_model(np.r_[params[0][:6] + sol[:6], b0])
     if hi - lo < MIN_SPAN_C:
         notes.append(f"accelerometer: the still blocks span only {hi - lo:.1f} deg C ({lo:.1f} "
                      f"to {hi:.1f}), under the {MIN_SPAN_C:g} deg C that tell a slope from "
@@ -196,4 +212,4 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                      f"{hi:.1f} deg C ({b} still blocks), held constant outside that span")
     return BiasPolynomial(sensor="accelerometer", b0=np.asarray(b0, float), t0=t0,
                           span=(lo, hi), order=order, coefs=coefs, cv_rms=cv, blocks=b,
-                          notes=tuple(notes))
+                          notes=tuple(notes), model=corrected, cov=cov)
