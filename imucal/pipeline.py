@@ -39,9 +39,11 @@ from imucal.stages.sanity import (
 )
 from imucal.stages.saturation import blocks_meeting, saturated_mask, saturated_runs
 from imucal.stages.temperature import (
+    block_legs,
     block_temperatures,
     fit_accel_bias_polynomial,
     fit_bias_polynomial,
+    hysteresis,
 )
 from imucal.stages.triads import (
     MIN_SHARED_BLOCKS,
@@ -518,12 +520,23 @@ def calibrate_temperature(result: Result) -> Result:
     block_t = block_temperatures(temp.t, temp.values, result.block_times)
     det, fits = result.detection, []
     models = [seg.acc.model for seg in result.segments for _ in range(seg.n_blocks)]
-    fits.append(fit_accel_bias_polynomial(block_t, det.means, models, result.calibration.g))
+    legs = block_legs(temp.t, temp.values, result.block_times)
+    fits.append(fit_accel_bias_polynomial(block_t, det.means, models, result.calibration.g,
+                                          legs))
     gyro_fit = result.segments[0].gyro
     if session.has_gyro and gyro_fit is not None:
         means = interval_means(session.t_gyro, lambda a, b: session.gyro[a:b],
                                result.block_times, 1.0).means
         fits.append(fit_bias_polynomial(block_t, means - gyro_fit.model.b, gyro_fit.model.b,
                                         "gyroscope"))
-    fits = tuple(dataclasses.replace(f, notes=said + f.notes) for f in fits if f is not None)
-    return dataclasses.replace(result, temperature=fits)
+    unit = ("deg/s", 180 / np.pi) if session.gyro_unit == "rad/s" else ("counts", 1.0)
+    out = []
+    for f in fits:
+        if f is None:
+            continue
+        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M11
+            hyst = hysteresis(f, legs, *unit)
+            f = dataclasses.replace(f, notes=f.notes + ((hyst,) if hyst else ()),
+                                    hysteresis=hyst)
+        out.append(dataclasses.replace(f, notes=said + f.notes))
+    return dataclasses.replace(result, temperature=tuple(out))

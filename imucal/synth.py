@@ -80,10 +80,20 @@ class TemperatureProfile:
     rate: float = 2.0
     noise: float = 0.05
     steps: int = 0
+    back: bool = False  # up to ``end`` in the first half, back down to ``start`` in the second
+    # Added to the bias while cooling (g, rad/s): a hysteresis no polynomial in T models.
+    acc_hysteresis: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_hysteresis: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def cooling(self, t: np.ndarray, duration: float) -> np.ndarray:
+        """(N,) True where the temperature is falling (the second half of a ``back`` ramp)."""
+        return np.asarray(t) > duration / 2 if self.back else np.zeros(len(t), bool)
 
     def at(self, t: np.ndarray, duration: float) -> np.ndarray:
         """The true temperature at times ``t`` (deg C)."""
         frac = np.clip(t / max(duration, 1e-9), 0.0, 1.0)
+        if self.back:
+            frac = 1.0 - np.abs(2.0 * frac - 1.0)
         if self.steps > 0:
             frac = np.minimum(np.floor(frac * self.steps), self.steps - 1) / max(self.steps - 1, 1)
         return self.start + (self.end - self.start) * frac
@@ -102,6 +112,8 @@ class TemperatureProfile:
 
     def to_dict(self) -> dict:
         return {"start_degC": self.start, "end_degC": self.end, "steps": self.steps,
+                "back": self.back, "acc_hysteresis_g": list(self.acc_hysteresis),
+                "gyro_hysteresis_rad_s": list(self.gyro_hysteresis),
                 "reference_degC": self.ref, "acc_bias_coefficients_g": [list(c) for c in self.acc],
                 "gyro_bias_coefficients_rad_s": [list(c) for c in self.gyro],
                 "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M10)"}
@@ -278,6 +290,8 @@ def make_session(
     if temperature is not None:  # M10: the bias moves with heat, in g and rad/s
         raw_a += temperature.acc_drift(temperature.at(t_a, duration))
         raw_g += temperature.gyro_drift(temperature.at(t_g, duration))
+        raw_a += np.outer(temperature.cooling(t_a, duration), temperature.acc_hysteresis)
+        raw_g += np.outer(temperature.cooling(t_g, duration), temperature.gyro_hysteresis)
         t_t = np.arange(0.0, duration, 1.0 / temperature.rate)
         heat = temperature.at(t_t, duration) + np.random.default_rng([seed, 3]).normal(
             0, temperature.noise, len(t_t))

@@ -160,7 +160,7 @@ def _temperature_dict(result: Result) -> dict:
                                                                        _f(f.span[1])],
             "order": f.order, "coefficients": _fl(f.coefs),
             "cv_rms_by_order": [_f(v) if np.isfinite(v) else None for v in f.cv_rms],
-            "static_blocks": f.blocks, "notes": list(f.notes)}
+            "static_blocks": f.blocks, "hysteresis": f.hysteresis, "notes": list(f.notes)}
     return out
 
 

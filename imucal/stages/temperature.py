@@ -61,6 +61,11 @@ class BiasPolynomial:
     # (9, 9) the covariance of that model's parameters from the same fit (its residuals'
     # scatter): what the rotation between triads propagates (M9) once temperature is modelled.
     cov: np.ndarray | None = None
+    # Each block's residual after the fit (the gyroscope's (n, 3) in its raw unit, the
+    # accelerometer's (n,) norm residual in mg) and which of the run's blocks they are.
+    residuals: np.ndarray | None = None
+    used: np.ndarray | None = None  # (n,) block indices
+    hysteresis: str | None = None  # heating against cooling, said (method.md §10)
 
     def calibrated(self, raw: np.ndarray, temp: np.ndarray) -> np.ndarray:
         """(N, 3) ``T K (raw - b(T))`` (M2 with M10's bias) of raw readings at temperatures
@@ -130,7 +135,8 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
         notes.append(f"{sensor}: bias of order {order} in temperature over {lo:.1f} to "
                      f"{hi:.1f} deg C ({b} still blocks), held constant outside that span")
     return BiasPolynomial(sensor=sensor, b0=np.asarray(b0, float), t0=t0, span=(lo, hi),
-                          order=order, coefs=coefs, cv_rms=cv, blocks=b, notes=tuple(notes))
+                          order=order, coefs=coefs, cv_rms=cv, blocks=b, notes=tuple(notes),
+                          residuals=d - _design(x, order) @ coef, used=np.flatnonzero(ok))
 
 
 def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> np.ndarray:
@@ -149,14 +155,18 @@ def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> 
 
 
 def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
-                              models: list[SensorModel], g: float) -> BiasPolynomial | None:
+                              models: list[SensorModel], g: float,
+                              legs: np.ndarray | None = None) -> BiasPolynomial | None:
     """M10 for an accelerometer. A still block says only how far its calibrated norm is from
     ``|g|`` (M11 seen along gravity: a bias across gravity turns the vector and keeps its
     norm), so the polynomial is fitted to the blocks' norm residuals, linearised at the §3
     fit, together with a small correction of all of M2 (a drift the constant fit absorbed into
     a scale is given back): ``|u_k| - |g| + J_k dtheta + sum_j a_k (T_k - T_0)^j . c_j = 0``,
-    ``a_k = d|u_k| / db``. The order is chosen as :func:`fit_bias_polynomial` does."""
+    ``a_k = d|u_k| / db``. The order is chosen as :func:`fit_bias_polynomial` does. With
+    ``legs`` (+1 heating, -1 cooling, 0 neither, per block), a bias step between the legs is
+    fitted beside the chosen order and said (hysteresis)."""
     ok = np.isfinite(temps)
+    legs = None if legs is None else np.asarray(legs)[ok]
     temps, means = temps[ok], means[ok]
     models = [m for m, keep in zip(models, ok) if keep]
     b = len(temps)
@@ -202,6 +212,17 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
     coefs = np.vstack([sol[6:9][None, :], c])  # the constant's correction, then c_1..c_p
     b0 = models[0].b
     corrected = acc_model(np.r_[params[0][:6] + sol[:6], b0])
+    hyst = None
+    if legs is not None and min((legs > 0).sum(), (legs < 0).sum()) >= MIN_LEG_BLOCKS:
+        step = jac[:, 6:9] * ((legs < 0).astype(float) - (legs > 0))[:, None] / 2
+        both = np.hstack([full, step])
+        sol_h, *_ = np.linalg.lstsq(both, -r, rcond=None)
+        ssr = float(np.sum((r + both @ sol_h) ** 2))
+        cov_h = np.linalg.pinv(both.T @ both)[-3:, -3:] * ssr / max(b - both.shape[1], 1)
+        m = corrected.matrix * 1e3 / g  # the step as the calibrated output sees it, in mg
+        hyst = hysteresis_text("accelerometer", m @ sol_h[-3:], m @ cov_h @ m.T,
+                               int((legs > 0).sum()), int((legs < 0).sum()), "mg")
+        notes.append(hyst)
     if hi - lo < MIN_SPAN_C:
         notes.append(f"accelerometer: the still blocks span only {hi - lo:.1f} deg C ({lo:.1f} "
                      f"to {hi:.1f}), under the {MIN_SPAN_C:g} deg C that tell a slope from "
@@ -212,4 +233,53 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                      f"{hi:.1f} deg C ({b} still blocks), held constant outside that span")
     return BiasPolynomial(sensor="accelerometer", b0=np.asarray(b0, float), t0=t0,
                           span=(lo, hi), order=order, coefs=coefs, cv_rms=cv, blocks=b,
-                          notes=tuple(notes), model=corrected, cov=cov)
+                          notes=tuple(notes), model=corrected, cov=cov,
+                          residuals=(r + full @ sol) / g * 1e3, used=np.flatnonzero(ok),
+                          hysteresis=hyst)
+
+
+# A block is on a heating or cooling leg where the temperature moves faster than this.
+LEG_RATE_C_PER_S = 0.003  # 0.2 deg C a minute
+LEG_WINDOW_S = 30.0  # each side of the block's middle, for that rate
+MIN_LEG_BLOCKS = 5
+
+
+def block_legs(t_temp: np.ndarray, temp: np.ndarray, block_times: np.ndarray) -> np.ndarray:
+    """(B,) +1 where a block lies on a heating leg, -1 on a cooling one, 0 otherwise: the
+    temperature's slope over ``LEG_WINDOW_S`` each side of the block's middle."""
+    temp = np.asarray(temp, float).reshape(-1)
+    mid = block_times.mean(axis=1)
+    lo = np.maximum(mid - LEG_WINDOW_S, t_temp[0])
+    hi = np.minimum(mid + LEG_WINDOW_S, t_temp[-1])
+    slope = (np.interp(hi, t_temp, temp) - np.interp(lo, t_temp, temp)) / np.maximum(hi - lo,
+                                                                                     1e-9)
+    return np.where(slope > LEG_RATE_C_PER_S, 1, np.where(slope < -LEG_RATE_C_PER_S, -1, 0))
+
+
+def hysteresis_text(sensor: str, diff: np.ndarray, cov: np.ndarray, n_up: int, n_down: int,
+                    unit: str) -> str:
+    """Heating against cooling said (method.md §10): the difference (a vector, ``cov`` its
+    covariance), significant beyond 3 times its standard error ``sqrt(trace cov)``."""
+    size, size_se = float(np.linalg.norm(diff)), float(np.sqrt(np.trace(cov)))
+    head = (f"{sensor}: heating ({n_up} still poses) and cooling ({n_down}) legs differ by "
+            f"{size:.3g} {unit} (+- {size_se:.2g})")
+    if size > 3 * size_se:
+        return f"{head}: hysteresis, which one polynomial in temperature cannot model"
+    return f"{head}: no hysteresis beyond the noise"
+
+
+def hysteresis(fit: BiasPolynomial, legs: np.ndarray, unit: str,
+               scale: float = 1.0) -> str | None:
+    """A gyroscope's heating against cooling: the mean residual of its fit on each leg, their
+    difference (``scale`` turns it into ``unit``); None without ``MIN_LEG_BLOCKS`` on each
+    leg. (The accelerometer's is fitted inside M11: :func:`fit_accel_bias_polynomial`.)"""
+    if fit.residuals is None or fit.used is None or fit.residuals.ndim != 2:
+        return fit.hysteresis
+    leg = legs[fit.used]
+    res = np.asarray(fit.residuals, float) * scale
+    up, down = res[leg > 0], res[leg < 0]
+    if len(up) < MIN_LEG_BLOCKS or len(down) < MIN_LEG_BLOCKS:
+        return None
+    diff = up.mean(axis=0) - down.mean(axis=0)
+    cov = np.diag(up.var(axis=0, ddof=1) / len(up) + down.var(axis=0, ddof=1) / len(down))
+    return hysteresis_text(fit.sensor, diff, cov, len(up), len(down), unit)

@@ -19,8 +19,8 @@ CUBIC = TemperatureProfile(acc=((4e-4, -3e-4, 2e-4), (1e-5, 1.5e-5, -1e-5), (1e-
                            gyro=((1e-4, -8e-5, 6e-5), (3e-6, -2e-6, 4e-6), (4e-7, 3e-7, -3e-7)))
 
 
-def _fit(seed: int, profile: TemperatureProfile, **settings):
-    session, truth = make_session(poses=30, seed=seed, acc_rate=200.0, temperature=profile)
+def _fit(seed: int, profile: TemperatureProfile, poses: int = 30, **settings):
+    session, truth = make_session(poses=poses, seed=seed, acc_rate=200.0, temperature=profile)
     result = calibrate_temperature(calibrate(session, **settings))
     return result, truth
 
@@ -112,3 +112,26 @@ def test_two_imus_on_one_thermometer_each_get_their_own_order_and_still_agree():
     assert max(err) < 0.05
     ratio = float(np.sqrt(np.mean(np.square(err))) / np.sqrt(np.mean(np.square(sd))))
     assert 1 / 1.5 < ratio < 1.5, (ratio, err, sd)
+
+
+@pytest.mark.parametrize("step", [0.0, 2e-3])
+def test_heating_and_cooling_legs_are_compared(step):
+    """Up to 45 deg C and back over 40 poses (20 each way): a bias step while cooling (2 mg,
+    0.5 mrad/s per axis) is found at its size and called hysteresis; without one, none is."""
+    import re
+
+    profile = TemperatureProfile(back=True, acc_hysteresis=(step, -step, step),
+                                 gyro_hysteresis=(step / 4, step / 4, -step / 4))
+    for seed in range(2):
+        result, _ = _fit(seed, profile, poses=40)
+        acc, gyro = result.temperature
+        for fit, truth in ((acc, np.sqrt(3) * step * 1e3),
+                           (gyro, np.degrees(np.sqrt(3) * step / 4))):
+            said = fit.hysteresis
+            size = float(re.search(r"differ by ([0-9.e-]+)", said).group(1))
+            if step:
+                assert said.endswith("hysteresis, which one polynomial in temperature cannot "
+                                     "model")
+                assert size == pytest.approx(truth, rel=0.15)
+            else:
+                assert said.endswith("no hysteresis beyond the noise")
