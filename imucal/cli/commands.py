@@ -84,7 +84,8 @@ def calibrate(
     all_imus: Annotated[bool, typer.Option(
         "--all-imus", help="Also calibrate every other accelerometer triad of the file (other "
                            "IMUs of a log, a2x… columns), each with its own gyroscope, and put "
-                           "each in the calibrated one's frame (method.md §9).")] = False,
+                           "each in the reference's frame: the calibrated one, which "
+                           "--acc/--gyro choose (method.md §9).")] = False,
     triad: Annotated[list[str] | None, typer.Option(
         "--triad", metavar="NAME", help="Also calibrate this other accelerometer triad (a "
                                         "stream or IMU name; repeat for several), as "
@@ -133,7 +134,14 @@ def calibrate(
         with progress.stage(f"loading {session.name}"):
             sess = imucal.load_session(session, **load_kw)
         with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
-            result = imucal.calibrate(sess, **settings)
+            try:
+                result = imucal.calibrate(sess, **settings)
+            except ImucalError as e:
+                if not (all_imus or triad):
+                    raise
+                # A file no triad calibrates from (a flight): where to see its IMUs anyway.
+                raise ImucalError(f"{e.problem}; imucal inspect shows how the file's IMUs "
+                                  "disagree as logged", source=e.source, field=e.field) from None
         if temperature:
             from imucal.pipeline import calibrate_temperature
 

@@ -56,3 +56,18 @@ def test_inspect_says_it_and_a_flight_is_not_calibrated():
     assert "stated in another frame (FRD (PX4 body frame" in text  # sensor_combined
     with pytest.raises(ImucalError):
         calibrate(load_session(ULOG))
+
+
+def test_calibrate_all_imus_on_the_flight_is_one_line_pointing_to_inspect(tmp_path):
+    import subprocess
+    import sys
+
+    code = "import sys; from imucal.cli import main; sys.exit(main())"
+    proc = subprocess.run([sys.executable, "-c", code, "calibrate", str(ULOG), "--out",
+                           str(tmp_path / "c.json"), "--all-imus"], capture_output=True,
+                          text=True, timeout=180)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert "distinct orientation" in line and line.endswith(
+        "imucal inspect shows how the file's IMUs disagree as logged")
+    assert not (tmp_path / "c.json").exists()
