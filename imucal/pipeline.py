@@ -388,18 +388,20 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
                     "in two directions hold its samples; its rotation to the reference is not "
                     "estimated")
     other_turns = _turns(res, sub, block_times)
-    if agreement is not None and ref_turns is not None and other_turns is not None:
-        g = gyro_agreement(ref_turns, other_turns, agreement.rotation.R)
-        agreement = dataclasses.replace(agreement, gyro=g)
-        if g is None:
-            said.append(f"{gyro.name}: fewer than {MIN_SHARED_BLOCKS} turns of "
-                        f"{MIN_TURN_DEG:g} deg or more in two directions; its rotation to the "
-                        "reference is not estimated (it is in its own frame)")
-    elif gyro is not None:
-        said.append(f"{gyro.name}: calibrated with {acc.name}, in its own frame (no rotation to "
-                    "the reference without "
-                    f"{'a reference gyroscope' if ref_turns is None else 'its own fit'})")
-    return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said))
+    gyro_rot = None
+    if gyro is not None:
+        why = ("the reference has no calibrated gyroscope" if ref_turns is None
+               else "its own gyroscope fit is missing" if other_turns is None else None)
+        if why is None:
+            gyro_rot = gyro_agreement(ref_turns, other_turns,
+                                      None if agreement is None else agreement.rotation.R)
+            if gyro_rot is None:
+                why = (f"fewer than {MIN_SHARED_BLOCKS} turns of {MIN_TURN_DEG:g} deg or more "
+                       "in two directions")
+        if why is not None:
+            said.append(f"{gyro.name}: calibrated with {acc.name}, in its own frame: {why}, so "
+                        "its rotation to the reference's gyroscope is not estimated")
+    return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said), gyro_rot)
 
 
 def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTurns | None:
@@ -507,6 +509,9 @@ def calibrate_temperature(result: Result) -> Result:
     drifts is the temperature's to explain. Without a temperature stream, or with too few
     blocks, nothing is fitted (``Result.temperature`` stays empty). Run it before
     :func:`calibrate_triads`, which fits each other triad's own with ``temperature=True``."""
+    if result.triads:
+        raise ValueError("calibrate_temperature comes before calibrate_triads (which takes "
+                         "temperature=True for the other triads)")
     session = result.session
     temp = _temp_stream(session)
     if temp is None:

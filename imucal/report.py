@@ -161,12 +161,13 @@ def _triads(result: Result) -> tuple[Line, ...]:
                     f"two agree within {a.held_out_rms_mg:.3g} mg RMS on poses held out "
                     f"(before calibration {a.before_rms_mg:.3g} mg)")
         out.append(Line("triad", f"{tri.name}: {text}{own}"))
-        if a is not None and a.gyro is not None:
-            g = a.gyro
+        if tri.gyro_agreement is not None:
+            g = tri.gyro_agreement
+            versus = ("" if g.accel_difference_deg is None
+                      else f", {g.accel_difference_deg:.3f} deg from its accelerometer's rotation")
             out.append(Line("triad", f"{tri.gyro}: turned {angle_deg(np.eye(3), g.rotation.R):.3f}"
                             f" deg from the reference's gyroscope (+- "
-                            f"{g.rotation.std_total_deg:.3f} deg, {g.turns} turns), "
-                            f"{g.accel_difference_deg:.3f} deg from its accelerometer's rotation"))
+                            f"{g.rotation.std_total_deg:.3f} deg, {g.turns} turns){versus}"))
         out += [Line("triad", t) for t in tri.said]
     return tuple(out)
 

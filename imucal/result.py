@@ -22,7 +22,7 @@ from imucal.stages.gyro import GyroFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
 from imucal.stages.temperature import BiasPolynomial
-from imucal.stages.triads import TriadAgreement
+from imucal.stages.triads import GyroAgreement, TriadAgreement
 from imucal.stages.verdict import Verdict
 from imucal.warning import RunWarning
 
@@ -55,13 +55,15 @@ class Triad:
     """Another accelerometer triad of the session (method.md §9): its own run of the whole
     method (``result``: None where it could not be calibrated, ``said`` tells why), with its
     gyroscope where its IMU has one, and its rotation to the reference and agreement with it
-    once calibrated (``agreement``: None without enough shared still blocks)."""
+    once calibrated (``agreement``: None without enough shared still blocks), and its
+    gyroscope's rotation to the reference's from the turns (``gyro_agreement``, M12)."""
 
     name: str  # the accelerometer stream's name, e.g. "acc sensor_accel:1"
     gyro: str | None  # the gyroscope stream calibrated with it, if any
     result: Result | None
     agreement: TriadAgreement | None
     said: tuple[str, ...] = ()
+    gyro_agreement: GyroAgreement | None = None
 
 
 @dataclass(frozen=True)

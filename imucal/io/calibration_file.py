@@ -192,16 +192,16 @@ def _triads_dict(result: Result) -> dict:
                                  "after_held_out": {"rms": _f(a.held_out_rms_mg),
                                                     "max": _f(float(np.max(a.held_out_mg)))}},
             }
-            if a.gyro is not None:  # M12: the gyroscope's own rotation, from the turns
-                gr = a.gyro.rotation
-                entry["gyroscope_rotation"] = {
-                    "rotation_to_reference": _fl(gr.R),
-                    "rotation_std_deg": {"about_x": _f(gr.std_deg[0]),
-                                         "about_y": _f(gr.std_deg[1]),
-                                         "about_z": _f(gr.std_deg[2]),
-                                         "total": _f(gr.std_total_deg)},
-                    "turns": a.gyro.turns, "turn_residual_rms_deg": _f(a.gyro.residual_rms_deg),
-                    "angle_to_accelerometer_rotation_deg": _f(a.gyro.accel_difference_deg)}
+        if tri.gyro_agreement is not None:  # M12: the gyroscope's own rotation, from the turns
+            ga = tri.gyro_agreement
+            gr = ga.rotation
+            entry["gyroscope_rotation"] = {
+                "rotation_to_reference": _fl(gr.R),
+                "rotation_std_deg": {"about_x": _f(gr.std_deg[0]), "about_y": _f(gr.std_deg[1]),
+                                     "about_z": _f(gr.std_deg[2]),
+                                     "total": _f(gr.std_total_deg)},
+                "turns": ga.turns, "turn_residual_rms_deg": _f(ga.residual_rms_deg),
+                "angle_to_accelerometer_rotation_deg": _f(ga.accel_difference_deg)}
         entry["said"] = list(tri.said)
         out.append(entry)
     chosen = result.session.chosen

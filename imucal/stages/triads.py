@@ -147,7 +147,6 @@ class TriadAgreement:
     held_out_mg: np.ndarray  # (blocks,) |u_k - R_(-k) v_k| with block k held out, mg
     before_mg: np.ndarray  # (blocks,) |u_k - v_k| of the raw means in the nominal frame, mg
     used: np.ndarray  # (B,) True on the reference's blocks both triads saw
-    gyro: GyroAgreement | None = None  # its IMU's gyroscope against the reference's (M12)
 
     @property
     def held_out_rms_mg(self) -> float:

@@ -68,7 +68,7 @@ def test_the_gyroscopes_rotation_from_the_turns_is_the_imus_and_honest(runs):
     0.05 deg, its 1-sigma within 1.5x of the error over seeds, and near the accelerometers'."""
     err, sd = [], []
     for result, truth in runs:
-        g = result.triads[0].agreement.gyro
+        g = result.triads[0].gyro_agreement
         assert g is not None and g.turns == 19  # every turn between the 20 poses
         err.append(angle_deg(g.rotation.R, truth.triads[0].R))
         sd.append(g.rotation.std_total_deg)
