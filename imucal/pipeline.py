@@ -305,7 +305,7 @@ def _check_blocks(session: Session, det: Detection, settings: Settings, g_in: fl
 __all__ = ["Result", "Segment", "Settings", "calibrate", "select_points", "make_nominal"]
 
 
-# --- several triads in one device (method.md §9) -----------------------------------------------
+# --- several triads in one device (method.md §10) -----------------------------------------------
 
 
 def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
@@ -313,7 +313,7 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
     """The run ``result`` with the session's other accelerometer triads (``Session.others``):
     each calibrated with the whole method on its own samples (with its own IMU's gyroscope where
     the session has one), and its rotation to ``result``'s triad, the reference, estimated from
-    the reference's still blocks (M8, M9) with the triads' held-out agreement. ``which`` is
+    the reference's still blocks (M9, M10) with the triads' held-out agreement. ``which`` is
     ``"all"`` or the names of the triads to take (a stream's instance, its IMU, or its name). A
     triad that cannot be calibrated is said in its ``said``, never stops the run. With
     ``temperature``, each triad's bias in temperature too (:func:`calibrate_temperature`, on
@@ -346,7 +346,7 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
 
 def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
                   ) -> TriadModels:
-    """A run's accelerometer fits for the rotation's error (M9): each of the reference's
+    """A run's accelerometer fits for the rotation's error (M10): each of the reference's
     blocks (``block_times``) in the segment whose span holds its middle, else the nearest."""
     mid = block_times.mean(axis=1)
     spans = np.array([[s.t_start, s.t_end] for s in result.segments])
@@ -354,7 +354,7 @@ def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
     covs = tuple(s.acc.cov for s in result.segments)
     fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
     if fit is not None and fit.cov is not None and len(covs) == 1:
-        # The constant fit's covariance holds the drift it could not model; M11's does not.
+        # The constant fit's covariance holds the drift it could not model; M13's does not.
         covs = (fit.cov,)
     return TriadModels(raw_means=raw_means, segment_of_block=np.argmin(outside, axis=1),
                        params=tuple(s.acc.params for s in result.segments),
@@ -406,7 +406,7 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
 
 def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTurns | None:
     """The turns between the reference's still blocks as ``result``'s calibrated gyroscope
-    measures them (each turn with its segment's model; M12); None without a calibrated
+    measures them (each turn with its segment's model; M11); None without a calibrated
     gyroscope or with fewer than two blocks."""
     segs = result.segments
     if not session.has_gyro or any(s.gyro is None for s in segs) or len(block_times) < 2:
@@ -431,7 +431,7 @@ def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTur
 
 def _with_temperature(result: Result, means: BlockMeans, raw_means: np.ndarray,
                       block_times: np.ndarray) -> BlockMeans:
-    """The calibrated block means with the bias at each block's temperature (M10) where the
+    """The calibrated block means with the bias at each block's temperature (M12) where the
     run fitted one for its accelerometer: a triad compared at the temperature it was at."""
     fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
     stream = _temp_stream(result.session)
@@ -498,11 +498,11 @@ def _triad_session(session: Session, acc: Stream, gyro: Stream | None,
                    chosen=tuple(f"{s.name} ({s.origin})" for s in (acc, gyro) if s is not None))
 
 
-# --- temperature (method.md §10) -----------------------------------------------------------------
+# --- temperature (method.md §11) -----------------------------------------------------------------
 
 
 def calibrate_temperature(result: Result) -> Result:
-    """The run ``result`` with each sensor's bias a polynomial in temperature (M10, M11), from
+    """The run ``result`` with each sensor's bias a polynomial in temperature (M12, M13), from
     the session's temperature stream (the one of the calibrated accelerometer's instance where
     there are several), at each still block. A run the grouping (§2) split into segments is
     calibrated again as one segment first, and said: with a temperature stream a bias that
@@ -539,7 +539,7 @@ def calibrate_temperature(result: Result) -> Result:
     for f in fits:
         if f is None:
             continue
-        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M11
+        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M13
             hyst = hysteresis(f, legs, *unit)
             f = dataclasses.replace(f, notes=f.notes + ((hyst,) if hyst else ()),
                                     hysteresis=hyst)

@@ -146,7 +146,7 @@ def _overview(result: Result) -> tuple[Line, ...]:
 
 
 def _triads(result: Result) -> tuple[Line, ...]:
-    """The other triads (method.md §9): each one's rotation to the reference and how well the
+    """The other triads (method.md §10): each one's rotation to the reference and how well the
     two agree once calibrated, then what was said about it."""
     out = []
     for tri in result.triads:
@@ -157,7 +157,8 @@ def _triads(result: Result) -> tuple[Line, ...]:
             text = "calibrated, not rotated" if res is not None else "not calibrated"
         else:
             text = (f"turned {a.angle_deg:.3f} deg from the reference (+- "
-                    f"{a.rotation.std_total_deg:.3f} deg, {a.blocks} shared still poses); the "
+                    f"{fmt(a.rotation.std_total_deg, '.3f')} deg, {a.blocks} shared still "
+                    f"poses); the "
                     f"two agree within {a.held_out_rms_mg:.3g} mg RMS on poses held out "
                     f"(before calibration {a.before_rms_mg:.3g} mg)")
         out.append(Line("triad", f"{tri.name}: {text}{own}"))
@@ -167,7 +168,8 @@ def _triads(result: Result) -> tuple[Line, ...]:
                       else f", {g.accel_difference_deg:.3f} deg from its accelerometer's rotation")
             out.append(Line("triad", f"{tri.gyro}: turned {angle_deg(np.eye(3), g.rotation.R):.3f}"
                             f" deg from the reference's gyroscope (+- "
-                            f"{g.rotation.std_total_deg:.3f} deg, {g.turns} turns){versus}"))
+                            f"{fmt(g.rotation.std_total_deg, '.3f')} deg, {g.turns} turns)"
+                            f"{versus}"))
         out += [Line("triad", t) for t in tri.said]
     return tuple(out)
 

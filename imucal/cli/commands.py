@@ -85,7 +85,7 @@ def calibrate(
         "--all-imus", help="Also calibrate every other accelerometer triad of the file (other "
                            "IMUs of a log, a2x… columns), each with its own gyroscope, and put "
                            "each in the reference's frame: the calibrated one, which "
-                           "--acc/--gyro choose (method.md §9).")] = False,
+                           "--acc/--gyro choose (method.md §10).")] = False,
     triad: Annotated[list[str] | None, typer.Option(
         "--triad", metavar="NAME", help="Also calibrate this other accelerometer triad (a "
                                         "stream or IMU name; repeat for several), as "
@@ -93,7 +93,7 @@ def calibrate(
     temperature: Annotated[bool, typer.Option(
         "--temperature", help="Fit each sensor's bias as a polynomial in the file's temperature "
                               "stream (order 0-3 by cross-validation; never extrapolated "
-                              "beyond the temperatures seen; method.md §10).")] = False,
+                              "beyond the temperatures seen; method.md §11).")] = False,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:

@@ -151,9 +151,9 @@ def result_to_dict(result: Result) -> dict:
 
 
 def _temperature_dict(result: Result) -> dict:
-    """Each sensor's bias in temperature (method.md §10, M10); only written when fitted."""
+    """Each sensor's bias in temperature (method.md §11, M12); only written when fitted."""
     out = {"model": "b(T) = b0 + sum_j coefficients[j] (T - reference_degC)^j, T held inside "
-                    "span_degC (never extrapolated), raw units per degC^j (method.md M10)"}
+                    "span_degC (never extrapolated), raw units per degC^j (method.md M12)"}
     for f in result.temperature:
         out[f.sensor] = {
             "b0": _fl(f.b0), "reference_degC": _f(f.t0), "span_degC": [_f(f.span[0]),
@@ -165,7 +165,7 @@ def _temperature_dict(result: Result) -> dict:
 
 
 def _triads_dict(result: Result) -> dict:
-    """The session's other triads (method.md §9): each one's own calibration (its segments,
+    """The session's other triads (method.md §10): each one's own calibration (its segments,
     quality and verdict, as for the reference), its rotation to the reference with the standard
     error, and the agreement of the two once calibrated. Only written when there are some, so a
     session of one triad writes the file it always did."""
@@ -192,7 +192,7 @@ def _triads_dict(result: Result) -> dict:
                                  "after_held_out": {"rms": _f(a.held_out_rms_mg),
                                                     "max": _f(float(np.max(a.held_out_mg)))}},
             }
-        if tri.gyro_agreement is not None:  # M12: the gyroscope's own rotation, from the turns
+        if tri.gyro_agreement is not None:  # M11: the gyroscope's own rotation, from the turns
             ga = tri.gyro_agreement
             gr = ga.rotation
             entry["gyroscope_rotation"] = {
@@ -206,7 +206,7 @@ def _triads_dict(result: Result) -> dict:
         out.append(entry)
     chosen = result.session.chosen
     return {"reference": chosen[0] if chosen else "the calibrated accelerometer",
-            "convention": "u_ref = R u_triad (method.md M8): R turns a triad's calibrated "
+            "convention": "u_ref = R u_triad (method.md M9): R turns a triad's calibrated "
                           "vector into the reference triad's frame; std in degrees about the "
                           "reference's axes, total = sqrt(trace of the covariance)",
             "triads": out}

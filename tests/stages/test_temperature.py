@@ -1,4 +1,4 @@
-"""Temperature (method.md §10): each sensor's bias a polynomial in temperature (M10, M11), its
+"""Temperature (method.md §11): each sensor's bias a polynomial in temperature (M12, M13), its
 order chosen by cross-validation, never extrapolated; on synthetic ramps with their truth."""
 
 from __future__ import annotations

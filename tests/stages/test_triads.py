@@ -1,5 +1,5 @@
-"""Several triads in one device (method.md §9): the rotation of a second accelerometer to the
-reference from the shared still blocks (M8, M9), its standard error, and the agreement after
+"""Several triads in one device (method.md §10): the rotation of a second accelerometer to the
+reference from the shared still blocks (M9, M10), its standard error, and the agreement after
 calibration, on synthetic sessions with their truth."""
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def test_the_triads_agree_within_1_mg_on_held_out_blocks_after_calibration(runs)
 
 
 def test_the_gyroscopes_rotation_from_the_turns_is_the_imus_and_honest(runs):
-    """M12: the second IMU's gyroscope turned as its accelerometer is (the truth's R), within
+    """M11: the second IMU's gyroscope turned as its accelerometer is (the truth's R), within
     0.05 deg, its 1-sigma within 1.5x of the error over seeds, and near the accelerometers'."""
     err, sd = [], []
     for result, truth in runs:
@@ -134,3 +134,22 @@ def test_one_triad_writes_no_triads_section():
 def test_a_triad_named_that_the_session_lacks_is_one_line(runs):
     with pytest.raises(ImucalError, match="no other accelerometer triad 'a3'.*a2"):
         calibrate_triads(runs[0][0], ["a3"])
+
+
+def test_a_triad_parameter_its_data_leave_undetermined_leaves_the_rotation_error_undetermined():
+    """An undetermined M2 parameter has no finite error: neither has the rotation it moves."""
+    from imucal.stages.triads import TriadModels, propagated_cov
+
+    rng = np.random.default_rng(1)
+    raw = rng.normal(size=(8, 3))
+    raw /= np.linalg.norm(raw, axis=1, keepdims=True)
+    params = np.r_[0, 0, 0, 1, 1, 1, 0, 0, 0].astype(float)
+    cov = np.eye(9) * 1e-8
+    used = np.ones(8, bool)
+    models = TriadModels(raw, np.zeros(8, int), (params,), (cov,), 1.0)
+    finite = propagated_cov(models, 1, raw, raw, np.full(8, 1e-8), used, np.eye(3))
+    assert np.all(np.isfinite(finite)) and np.trace(finite) > 0
+    cov[0, 0] = np.inf
+    models = TriadModels(raw, np.zeros(8, int), (params,), (cov,), 1.0)
+    assert np.all(np.isinf(propagated_cov(models, 1, raw, raw, np.full(8, 1e-8), used,
+                                          np.eye(3))))
