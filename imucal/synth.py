@@ -233,7 +233,7 @@ def make_session(
     counts_per_g: float = 4096.0,
     gyro_unit: str = "rad/s",
     counts_per_rad_s: float = 939.65,
-    second_acc: SecondTriad | None = None,
+    second_acc: SecondTriad | tuple[SecondTriad, ...] | None = None,
     temperature: TemperatureProfile | None = None,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
@@ -249,8 +249,9 @@ def make_session(
     session holds rad/s or counts (:class:`~imucal.session.Session`), so "deg/s" gives rad/s
     here: write it with ``write_session_mat(..., gyro_unit="deg/s")`` for a file in deg/s.
     ``second_acc`` adds a second accelerometer triad (``Session.others``, named ``a2`` as a
-    table's a2x… columns are) and its truth (``Truth.triads``), drawn from a generator of its
-    own: the first triad and the gyroscope are the same as without it. ``temperature`` makes
+    table's a2x… columns are; a tuple of them: a2, a3, ...) and its truth (``Truth.triads``),
+    drawn from a generator of its own: the first triad and the gyroscope are the same as
+    without it. ``temperature`` makes
     the biases drift with a temperature profile and adds its stream (``temp``, in
     ``Session.others``); the noise drawn is the same as without it.
     """
@@ -314,9 +315,10 @@ def make_session(
         drift = drift * counts_per_rad_s
 
     others, triads = (), ()
-    if second_acc is not None:
-        streams, tt = _second_triad(motion, second_acc, seed, acc_rate, acc_unit)
-        others, triads = streams, (tt,)
+    specs = (second_acc,) if isinstance(second_acc, SecondTriad) else (second_acc or ())
+    for i, spec in enumerate(specs):  # a2 (g2), a3 (g3), ...: each from a generator of its own
+        streams, tt = _second_triad(motion, spec, seed, acc_rate, acc_unit, number=i + 2)
+        others, triads = others + streams, triads + (tt,)
     if temp_stream is not None:
         if acc_unit == "counts" or gyro_unit == "counts":
             raise ValueError("a temperature profile is made in g or m/s^2 and rad/s")
@@ -331,12 +333,12 @@ def make_session(
 
 
 def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
-                  acc_unit: str) -> tuple[tuple[Stream, ...], TriadTruth]:
+                  acc_unit: str, number: int = 2) -> tuple[tuple[Stream, ...], TriadTruth]:
     """The second accelerometer's stream (and its gyroscope's) and truth (method.md §10, M9:
     ``u = R v``; the gyroscope in the same frame, so M11's rotation is ``R`` too)."""
     if acc_unit not in ("g", "m/s^2"):
         raise ValueError(f"a second triad is made in g or m/s^2, not {acc_unit!r}")
-    rng = np.random.default_rng([seed, 2])
+    rng = np.random.default_rng([seed, 2] if number == 2 else [seed, 2, number])
     axis = rng.normal(0, 1, 3)
     axis /= np.linalg.norm(axis)
     R = quat.to_matrix(quat.from_rotvec(axis[None] * np.radians(spec.rotation_deg)))[0]
@@ -351,15 +353,16 @@ def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
     g = STANDARD_GRAVITY if acc_unit == "m/s^2" else 1.0
     raw *= g
     model = _rescale(model, g, 0.0, g)
-    streams = (Stream("acc", "a2", t, raw, acc_unit, "synthetic second accelerometer (a2x, "
-                      "a2y, a2z)", time_source="its own clock"),)
+    a, g_name = f"a{number}", f"g{number}"
+    streams = (Stream("acc", a, t, raw, acc_unit, f"synthetic accelerometer {number} ({a}x, "
+                      f"{a}y, {a}z)", time_source="its own clock"),)
     gyro = None
     if spec.gyro:  # drawn after everything above: the accelerometer is the same without it
         gyro = random_gyro_model(rng)
         raw_g = gyro.invert(w @ R) + rng.normal(0, spec.gyro_noise, w.shape)
-        streams += (Stream("gyro", "g2", t, raw_g, "rad/s", "synthetic second gyroscope (g2x, "
-                           "g2y, g2z)", time_source="its own clock"),)
-    return streams, TriadTruth(name="a2", model=model, R=R, range=spec.range_g * g,
+        streams += (Stream("gyro", g_name, t, raw_g, "rad/s", f"synthetic gyroscope {number} "
+                           f"({g_name}x, {g_name}y, {g_name}z)", time_source="its own clock"),)
+    return streams, TriadTruth(name=a, model=model, R=R, range=spec.range_g * g,
                                noise=spec.noise, gyro=gyro)
 
 

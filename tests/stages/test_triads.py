@@ -153,3 +153,38 @@ def test_a_triad_parameter_its_data_leave_undetermined_leaves_the_rotation_error
     models = TriadModels(raw, np.zeros(8, int), (params,), (cov,), 1.0)
     assert np.all(np.isinf(propagated_cov(models, 1, raw, raw, np.full(8, 1e-8), used,
                                           np.eye(3))))
+
+
+def test_three_imus_named_as_a_log_names_them_in_other_units():
+    """Three IMUs as a flight controller's log holds them (sensor_accel:N with its gyroscope
+    by IMU, in m/s^2 while the reference is in g): each paired with its own gyroscope, each
+    turned by its own rotation, chosen by IMU name."""
+    import dataclasses
+
+    from imucal.session import STANDARD_GRAVITY
+
+    session, truth = make_session(poses=20, seed=5, acc_rate=200.0, second_acc=(
+        SecondTriad(rate=400.0, gyro=True), SecondTriad(rate=250.0, rotation_deg=10.0,
+                                                        gyro=True)))
+    renamed = []
+    for s in session.others:
+        n = s.instance[1]
+        imu = f"sensor_accel:{n}+sensor_gyro:{n}"
+        if s.kind == "acc":
+            renamed.append(dataclasses.replace(s, instance=f"sensor_accel:{n}", imu=imu,
+                                               values=s.values * STANDARD_GRAVITY, unit="m/s^2"))
+        else:
+            renamed.append(dataclasses.replace(s, instance=f"sensor_gyro:{n}", imu=imu))
+    session = dataclasses.replace(session, others=tuple(renamed))
+    base = calibrate(session)
+    result = calibrate_triads(base)
+    assert [(t.name, t.gyro) for t in result.triads] == [
+        ("acc sensor_accel:2", "gyro sensor_gyro:2"), ("acc sensor_accel:3", "gyro sensor_gyro:3")]
+    for tri, tt in zip(result.triads, truth.triads):
+        assert tri.result.calibration.acc_unit == "m/s^2"
+        assert angle_deg(tri.agreement.rotation.R, tt.R) < 0.05
+        assert angle_deg(tri.gyro_agreement.rotation.R, tt.R) < 0.05
+        assert tri.agreement.held_out_rms_mg < 1.0
+    assert result.triads[1].agreement.angle_deg == pytest.approx(10.0, abs=0.05)
+    (only,) = calibrate_triads(base, ["sensor_accel:3+sensor_gyro:3"]).triads
+    assert only.name == "acc sensor_accel:3"
