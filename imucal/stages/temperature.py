@@ -65,6 +65,7 @@ class BiasPolynomial:
     # accelerometer's (n,) norm residual in mg) and which of the run's blocks they are.
     residuals: np.ndarray | None = None
     used: np.ndarray | None = None  # (n,) block indices
+    temps: np.ndarray | None = None  # (n,) those blocks' temperatures, deg C (the data points)
     hysteresis: str | None = None  # heating against cooling, said (method.md §11)
 
     def calibrated(self, raw: np.ndarray, temp: np.ndarray) -> np.ndarray:
@@ -136,7 +137,8 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
                      f"{hi:.1f} deg C ({b} still blocks), held constant outside that span")
     return BiasPolynomial(sensor=sensor, b0=np.asarray(b0, float), t0=t0, span=(lo, hi),
                           order=order, coefs=coefs, cv_rms=cv, blocks=b, notes=tuple(notes),
-                          residuals=d - _design(x, order) @ coef, used=np.flatnonzero(ok))
+                          residuals=d - _design(x, order) @ coef, used=np.flatnonzero(ok),
+                          temps=temps)
 
 
 def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> np.ndarray:
@@ -235,7 +237,7 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                           span=(lo, hi), order=order, coefs=coefs, cv_rms=cv, blocks=b,
                           notes=tuple(notes), model=corrected, cov=cov,
                           residuals=(r + full @ sol) / g * 1e3, used=np.flatnonzero(ok),
-                          hysteresis=hyst)
+                          temps=temps, hysteresis=hyst)
 
 
 # A block is on a heating or cooling leg where the temperature moves faster than this.

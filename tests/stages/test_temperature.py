@@ -42,6 +42,9 @@ def test_a_15_to_45_degC_ramp_gives_the_bias_within_1_mg_and_0_02_dps(profile, o
         result, truth = _fit(seed, profile, single_segment=True)
         acc, gyro = result.temperature
         assert acc.span[0] < 16 and acc.span[1] > 44
+        # The data points: every still pose's temperature, on the ramp.
+        assert len(acc.temps) == len(result.detection.blocks) == len(gyro.residuals)
+        assert (acc.temps.min(), acc.temps.max()) == acc.span
         acc_mg, gyro_dps = _residuals(result, truth)
         assert acc_mg <= 1.0 and gyro_dps <= 0.02, (seed, acc_mg, gyro_dps)
         orders.append((acc.order, gyro.order))
