@@ -9,6 +9,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from imucal.errors import ImucalError
+from imucal.models import SensorModel
 from imucal.numerics.directions import distinct_orientations
 from imucal.result import Result, Segment, Triad
 from imucal.session import STANDARD_GRAVITY, Session, validate
@@ -51,6 +52,7 @@ from imucal.stages.triads import (
     BlockMeans,
     GyroTurns,
     TriadModels,
+    fit_against_reference,
     gyro_agreement,
     gyro_model_from,
     interval_means,
@@ -354,7 +356,7 @@ def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
     covs = tuple(s.acc.cov for s in result.segments)
     fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
     if fit is not None and fit.cov is not None and len(covs) == 1:
-        # The constant fit's covariance holds the drift it could not model; M13's does not.
+        # The constant fit's covariance holds the drift it could not model; M14's does not.
         covs = (fit.cov,)
     return TriadModels(raw_means=raw_means, segment_of_block=np.argmin(outside, axis=1),
                        params=tuple(s.acc.params for s in result.segments),
@@ -401,7 +403,17 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
         if why is not None:
             said.append(f"{gyro.name}: calibrated with {acc.name}, in its own frame: {why}, so "
                         "its rotation to the reference's gyroscope is not estimated")
-    return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said), gyro_rot)
+    against = None
+    if agreement is not None:
+        used = agreement.used
+        fit = fit_against_reference(ref.means[used], raw.means[used],
+                                    ref.var[used] + other.var[used])
+        if fit is not None:  # in units of |g|: to the triad's own calibrated unit
+            g = res.calibration.g
+            against = dataclasses.replace(fit, model=SensorModel(
+                T=fit.model.T, K=fit.model.K * g, b=fit.model.b), std_K=fit.std_K * g)
+    return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said), gyro_rot,
+                 against)
 
 
 def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTurns | None:
@@ -431,7 +443,7 @@ def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTur
 
 def _with_temperature(result: Result, means: BlockMeans, raw_means: np.ndarray,
                       block_times: np.ndarray) -> BlockMeans:
-    """The calibrated block means with the bias at each block's temperature (M12) where the
+    """The calibrated block means with the bias at each block's temperature (M13) where the
     run fitted one for its accelerometer: a triad compared at the temperature it was at."""
     fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
     stream = _temp_stream(result.session)
@@ -502,7 +514,7 @@ def _triad_session(session: Session, acc: Stream, gyro: Stream | None,
 
 
 def calibrate_temperature(result: Result) -> Result:
-    """The run ``result`` with each sensor's bias a polynomial in temperature (M12, M13), from
+    """The run ``result`` with each sensor's bias a polynomial in temperature (M13, M14), from
     the session's temperature stream (the one of the calibrated accelerometer's instance where
     there are several), at each still block. A run the grouping (§2) split into segments is
     calibrated again as one segment first, and said: with a temperature stream a bias that
@@ -539,7 +551,7 @@ def calibrate_temperature(result: Result) -> Result:
     for f in fits:
         if f is None:
             continue
-        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M13
+        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M14
             hyst = hysteresis(f, legs, *unit)
             f = dataclasses.replace(f, notes=f.notes + ((hyst,) if hyst else ()),
                                     hysteresis=hyst)

@@ -170,6 +170,14 @@ def _triads(result: Result) -> tuple[Line, ...]:
                             f" deg from the reference's gyroscope (+- "
                             f"{fmt(g.rotation.std_total_deg, '.3f')} deg, {g.turns} turns)"
                             f"{versus}"))
+        v = tri.against_reference
+        if v is not None and res is not None:
+            own = res.segments[0].acc.model
+            dk = float(np.max(np.abs(v.model.K / own.K - 1))) * 1e6
+            db = float(np.max(np.abs(own.matrix @ (v.model.b - own.b)))) / res.calibration.g * 1e3
+            out.append(Line("triad", f"{tri.name} fitted to the reference's gravity vectors: "
+                            f"scales within {dk:.0f} ppm and bias within {db:.3g} mg of its own "
+                            f"fit ({v.rms_mg:.3g} mg RMS over {v.blocks} still poses)"))
         out += [Line("triad", t) for t in tri.said]
     return tuple(out)
 

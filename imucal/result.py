@@ -22,7 +22,7 @@ from imucal.stages.gyro import GyroFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
 from imucal.stages.temperature import BiasPolynomial
-from imucal.stages.triads import GyroAgreement, TriadAgreement
+from imucal.stages.triads import AgainstReference, GyroAgreement, TriadAgreement
 from imucal.stages.verdict import Verdict
 from imucal.warning import RunWarning
 
@@ -64,6 +64,9 @@ class Triad:
     agreement: TriadAgreement | None
     said: tuple[str, ...] = ()
     gyro_agreement: GyroAgreement | None = None
+    # Its M2 and rotation fitted to the reference's calibrated gravity vectors (M12), its
+    # output in its own calibrated unit; None without enough shared blocks.
+    against_reference: AgainstReference | None = None
 
 
 @dataclass(frozen=True)

@@ -54,12 +54,12 @@ class Truth:
                     {"temperature": self.temperature.to_dict()} if self.temperature else {})
 
     def acc_bias_at(self, temp: np.ndarray) -> np.ndarray:
-        """(N, 3) the accelerometer's true bias (raw unit) at temperatures ``temp`` (M12)."""
+        """(N, 3) the accelerometer's true bias (raw unit) at temperatures ``temp`` (M13)."""
         extra = 0.0 if self.temperature is None else self.temperature.acc_drift(temp)
         return self.acc.b + extra * self.g
 
     def gyro_bias_at(self, temp: np.ndarray) -> np.ndarray:
-        """(N, 3) the gyroscope's true bias (rad/s) at temperatures ``temp`` (M12)."""
+        """(N, 3) the gyroscope's true bias (rad/s) at temperatures ``temp`` (M13)."""
         extra = 0.0 if self.temperature is None else self.temperature.gyro_drift(temp)
         return self.gyro.b + extra
 
@@ -67,7 +67,7 @@ class Truth:
 @dataclass(frozen=True)
 class TemperatureProfile:
     """The device's temperature over a session and what it does to the biases (method.md
-    §11, M12): a linear ramp from ``start`` to ``end`` deg C (``steps`` > 0: that many equal
+    §11, M13): a linear ramp from ``start`` to ``end`` deg C (``steps`` > 0: that many equal
     steps instead), logged at ``rate`` Hz with ``noise`` deg C; the accelerometer's bias moves
     by ``sum_j acc[j-1] (T - ref)^j`` g and the gyroscope's by ``sum_j gyro[j-1] (T - ref)^j``
     rad/s, each a (p, 3) array of coefficients per deg C^j (p the true order)."""
@@ -116,7 +116,7 @@ class TemperatureProfile:
                 "gyro_hysteresis_rad_s": list(self.gyro_hysteresis),
                 "reference_degC": self.ref, "acc_bias_coefficients_g": [list(c) for c in self.acc],
                 "gyro_bias_coefficients_rad_s": [list(c) for c in self.gyro],
-                "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M12)"}
+                "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M13)"}
 
 
 @dataclass(frozen=True)
@@ -288,7 +288,7 @@ def make_session(
     raw_g = _distort(w, t_g, gyro_truth, gyro2, t_change) + drift * t_g[:, None]
     raw_g += rng.normal(0, gyro_noise, raw_g.shape)
     temp_stream = None
-    if temperature is not None:  # M12: the bias moves with heat, in g and rad/s
+    if temperature is not None:  # M13: the bias moves with heat, in g and rad/s
         raw_a += temperature.acc_drift(temperature.at(t_a, duration))
         raw_g += temperature.gyro_drift(temperature.at(t_g, duration))
         raw_a += np.outer(temperature.cooling(t_a, duration), temperature.acc_hysteresis)

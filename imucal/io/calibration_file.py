@@ -151,9 +151,9 @@ def result_to_dict(result: Result) -> dict:
 
 
 def _temperature_dict(result: Result) -> dict:
-    """Each sensor's bias in temperature (method.md §11, M12); only written when fitted."""
+    """Each sensor's bias in temperature (method.md §11, M13); only written when fitted."""
     out = {"model": "b(T) = b0 + sum_j coefficients[j] (T - reference_degC)^j, T held inside "
-                    "span_degC (never extrapolated), raw units per degC^j (method.md M12)"}
+                    "span_degC (never extrapolated), raw units per degC^j (method.md M13)"}
     for f in result.temperature:
         out[f.sensor] = {
             "b0": _fl(f.b0), "reference_degC": _f(f.t0), "span_degC": [_f(f.span[0]),
@@ -202,6 +202,17 @@ def _triads_dict(result: Result) -> dict:
                                      "total": _f(gr.std_total_deg)},
                 "turns": ga.turns, "turn_residual_rms_deg": _f(ga.residual_rms_deg),
                 "angle_to_accelerometer_rotation_deg": _f(ga.accel_difference_deg)}
+        v = tri.against_reference
+        if v is not None:  # M12: its M2 fitted to the reference's calibrated gravity vectors
+            entry["against_reference"] = {
+                "T": _fl(v.model.T), "K": _fl(v.model.K), "b": _fl(v.model.b),
+                "std": {n: _f(x) for n, x in zip(("s_x", "s_y", "s_z", "b_x", "b_y", "b_z"),
+                                                 np.r_[v.std_K, v.std_b])},
+                "rotation_to_reference": _fl(v.R), "residual_rms_mg": _f(v.rms_mg),
+                "static_blocks": v.blocks,
+                "note": "the triad's M2 fitted to the reference's calibrated gravity vectors "
+                        "(method.md M12): three equations per still block; the reference's own "
+                        "errors pass into it and are not in these standard errors"}
         entry["said"] = list(tri.said)
         out.append(entry)
     chosen = result.session.chosen

@@ -1,5 +1,5 @@
-"""Temperature (method.md §11): a triad's bias as a polynomial in its temperature (M12), fitted
-to the still blocks after the constant-bias calibration (M13), its order (0-3) chosen by
+"""Temperature (method.md §11): a triad's bias as a polynomial in its temperature (M13), fitted
+to the still blocks after the constant-bias calibration (M14), its order (0-3) chosen by
 cross-validation over the blocks, and never extrapolated beyond the temperatures seen.
 
 The rest of the model (misalignment, scale) stays as §3 and §4 fitted it: PX4 assumes the same,
@@ -42,7 +42,7 @@ def block_temperatures(t_temp: np.ndarray, temp: np.ndarray,
 
 @dataclass(frozen=True)
 class BiasPolynomial:
-    """M12 for one sensor: ``b(T) = b_0 + sum_j c_j (T - T_0)^j`` (``coefs[j]``, raw unit per
+    """M13 for one sensor: ``b(T) = b_0 + sum_j c_j (T - T_0)^j`` (``coefs[j]``, raw unit per
     deg C^j, ``coefs[0]`` the constant's offset from ``b_0``), held at its end values outside
     ``span``."""
 
@@ -55,7 +55,7 @@ class BiasPolynomial:
     cv_rms: np.ndarray  # (4,) held-out RMS of the bias per order 0-3 (NaN: not tried), raw
     blocks: int
     notes: tuple[str, ...] = ()
-    # The accelerometer's M2 with the small correction M13 fitted beside the polynomial (its
+    # The accelerometer's M2 with the small correction M14 fitted beside the polynomial (its
     # misalignments and scales; its bias b0): the model b(T) belongs to. None: the fit's own.
     model: SensorModel | None = None
     # (9, 9) the covariance of that model's parameters from the same fit (its residuals'
@@ -69,7 +69,7 @@ class BiasPolynomial:
     hysteresis: str | None = None  # heating against cooling, said (method.md §11)
 
     def calibrated(self, raw: np.ndarray, temp: np.ndarray) -> np.ndarray:
-        """(N, 3) ``T K (raw - b(T))`` (M2 with M12's bias) of raw readings at temperatures
+        """(N, 3) ``T K (raw - b(T))`` (M2 with M13's bias) of raw readings at temperatures
         ``temp``; needs :attr:`model`."""
         m = self.model
         return (np.asarray(raw, float) - self.bias_at(temp)) @ m.matrix.T
@@ -92,7 +92,7 @@ def _design(x: np.ndarray, order: int) -> np.ndarray:
 
 def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
                         sensor: str) -> BiasPolynomial | None:
-    """M12 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
+    """M13 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
     at block temperatures ``temps`` (B,): the order by ``FOLDS``-fold cross-validation over
     the blocks (sorted by temperature, every ``FOLDS``-th block in one fold, so each fold spans
     the range and none is extrapolated); None without two blocks of known temperature."""
@@ -159,8 +159,8 @@ def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> 
 def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                               models: list[SensorModel], g: float,
                               legs: np.ndarray | None = None) -> BiasPolynomial | None:
-    """M12 for an accelerometer. A still block says only how far its calibrated norm is from
-    ``|g|`` (M13 seen along gravity: a bias across gravity turns the vector and keeps its
+    """M13 for an accelerometer. A still block says only how far its calibrated norm is from
+    ``|g|`` (M14 seen along gravity: a bias across gravity turns the vector and keeps its
     norm), so the polynomial is fitted to the blocks' norm residuals, linearised at the §3
     fit, together with a small correction of all of M2 (a drift the constant fit absorbed into
     a scale is given back): ``|u_k| - |g| + J_k dtheta + sum_j a_k (T_k - T_0)^j . c_j = 0``,
@@ -274,7 +274,7 @@ def hysteresis(fit: BiasPolynomial, legs: np.ndarray, unit: str,
                scale: float = 1.0) -> str | None:
     """A gyroscope's heating against cooling: the mean residual of its fit on each leg, their
     difference (``scale`` turns it into ``unit``); None without ``MIN_LEG_BLOCKS`` on each
-    leg. (The accelerometer's is fitted inside M13: :func:`fit_accel_bias_polynomial`.)"""
+    leg. (The accelerometer's is fitted inside M14: :func:`fit_accel_bias_polynomial`.)"""
     if fit.residuals is None or fit.used is None or fit.residuals.ndim != 2:
         return fit.hysteresis
     leg = legs[fit.used]

@@ -254,6 +254,79 @@ def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
     return TriadAgreement(rotation=fit, blocks=n, held_out_mg=held, before_mg=before, used=used)
 
 
+# --- a triad calibrated against the reference (method.md §10, M12) ------------------------------
+
+
+@dataclass(frozen=True)
+class AgainstReference:
+    """Another triad's M2 and rotation fitted to the reference's calibrated gravity vectors
+    (M12): three equations per still block where its own fit (M3) has one, so a noisy
+    (high-range) triad is pinned to the precise one; the reference's own errors pass into it."""
+
+    model: SensorModel  # M2 in the triad's raw unit, output in units of |g|
+    R: np.ndarray  # (3, 3) its frame to the reference's
+    std_K: np.ndarray  # (3,) standard errors of the scales
+    std_b: np.ndarray  # (3,) standard errors of the bias, raw unit
+    rms_mg: float  # the fit's residual, mg
+    blocks: int
+
+
+def _split_affine(A: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, SensorModel]:
+    """``A m + c = R T K (m - b)``: R from the QR decomposition of A (upper triangular factor
+    with a positive diagonal, M2's T K), then K its diagonal, T its columns over K, b."""
+    q, u = np.linalg.qr(A)
+    sign = np.sign(np.diag(u))
+    sign[sign == 0] = 1.0
+    q, u = q * sign[None, :], u * sign[:, None]
+    if np.linalg.det(q) < 0:  # a reflection is no rotation: A itself is improper
+        raise ValueError("the affine map reflects: no rotation and M2 give it")
+    K = np.diag(u).copy()
+    return q, SensorModel(T=u / K[None, :], K=K, b=-np.linalg.solve(A, c))
+
+
+def fit_against_reference(u: np.ndarray, m: np.ndarray, s2: np.ndarray
+                          ) -> AgainstReference | None:
+    """M12 by weighted linear least squares on ``u_k = A m_k + c`` (``u`` (B, 3) the
+    reference's calibrated means over |g|, ``m`` the triad's raw means, ``s2`` each block's
+    variance), then split into R and M2; the covariance of K and b from the least squares
+    (scaled by the residuals' reduced chi-square where above 1) through the split's Jacobian.
+    None with fewer than 6 blocks."""
+    b = len(u)
+    if b < 6:
+        return None
+    w = 1.0 / np.sqrt(s2)
+    X = np.hstack([m, np.ones((b, 1))]) * w[:, None]  # one row per block, the same per axis
+    coef, *_ = np.linalg.lstsq(X, u * w[:, None], rcond=None)  # (4, 3): [A'; c']
+    res = u * w[:, None] - X @ coef
+    dof = max(3 * b - 12, 1)
+    scale = max(1.0, float(np.sum(res**2)) / dof)
+    xtx_inv = np.linalg.inv(X.T @ X) * scale  # each output axis: the same design
+    A, c = coef[:3].T, coef[3]
+    R, model = _split_affine(A, c)
+
+    def parts(p: np.ndarray) -> np.ndarray:
+        _, mm = _split_affine(p[:9].reshape(3, 3), p[9:])
+        return np.r_[mm.K, mm.b]
+
+    p0 = np.r_[A.ravel(), c]
+    cov_p = np.zeros((12, 12))  # A row i and c_i come from output axis i's regression
+    for i in range(3):
+        idx = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
+        cov_p[np.ix_(idx, idx)] = xtx_inv
+    jac = np.empty((6, 12))
+    for j in range(12):  # the split's Jacobian by central differences (12 small QRs)
+        h = 1e-7 * max(1.0, abs(p0[j]))
+        up, dn = p0.copy(), p0.copy()
+        up[j] += h
+        dn[j] -= h
+        jac[:, j] = (parts(up) - parts(dn)) / (2 * h)
+    cov = jac @ cov_p @ jac.T
+    std = np.sqrt(np.diag(cov))
+    rms = float(np.sqrt(np.mean(np.sum((u - m @ A.T - c) ** 2, axis=1)))) * 1e3
+    return AgainstReference(model=model, R=R, std_K=std[:3], std_b=std[3:], rms_mg=rms,
+                            blocks=b)
+
+
 # --- gyroscopes: the rotation from the turns (method.md §10, M11) --------------------------------
 
 # Turns smaller than this say little about an axis (their rotation vector is mostly noise).

@@ -1,4 +1,4 @@
-"""Temperature (method.md §11): each sensor's bias a polynomial in temperature (M12, M13), its
+"""Temperature (method.md §11): each sensor's bias a polynomial in temperature (M13, M14), its
 order chosen by cross-validation, never extrapolated; on synthetic ramps with their truth."""
 
 from __future__ import annotations

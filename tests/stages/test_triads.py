@@ -188,3 +188,29 @@ def test_three_imus_named_as_a_log_names_them_in_other_units():
     assert result.triads[1].agreement.angle_deg == pytest.approx(10.0, abs=0.05)
     (only,) = calibrate_triads(base, ["sensor_accel:3+sensor_gyro:3"]).triads
     assert only.name == "acc sensor_accel:3"
+
+
+def test_a_noisy_triad_fitted_to_the_reference_s_gravity_vectors():
+    """M12: a triad with 10 times the reference's noise (a high-range part), fitted to the
+    reference's calibrated vectors, has its scales and bias closer to the truth than its own
+    norm-only fit, and standard errors that say so honestly (errors over 12 seeds within 1.5x
+    of them)."""
+    own_k, vec_k, own_b, vec_b, z = [], [], [], [], []
+    for seed in range(12):
+        session, truth = make_session(poses=20, seed=seed, acc_rate=200.0,
+                                      second_acc=SecondTriad(rate=400.0, noise=0.03))
+        (tri,) = calibrate_triads(calibrate(session)).triads
+        v, tt, own = tri.against_reference, truth.triads[0], tri.result.segments[0].acc.model
+        assert angle_deg(v.R, tt.R) < 0.1
+        own_k += list(own.K / tt.model.K - 1)
+        vec_k += list(v.model.K / tt.model.K - 1)
+        own_b += list(own.b - tt.model.b)
+        vec_b += list(v.model.b - tt.model.b)
+        z += list((v.model.K - tt.model.K) / v.std_K) + list((v.model.b - tt.model.b) / v.std_b)
+
+    def rms(x):
+        return float(np.sqrt(np.mean(np.square(x))))
+
+    assert rms(vec_k) < 0.8 * rms(own_k) and rms(vec_b) < 0.6 * rms(own_b)
+    assert rms(vec_b) < 0.5e-3  # g: half a mg
+    assert 1 / 1.5 < rms(z) < 1.5
