@@ -52,6 +52,7 @@ from imucal.stages.triads import (
     BlockMeans,
     GyroTurns,
     TriadModels,
+    clock_offset,
     fit_against_reference,
     gyro_agreement,
     gyro_model_from,
@@ -369,11 +370,13 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
     said: list[str] = []
     gyro = _gyro_partner(session, acc)
     sub = _triad_session(session, acc, gyro, said)
+    sub, offset = _aligned(session, sub, acc.name, said)
     try:
         res = calibrate(sub, settings)
     except ImucalError as e:
         said.append(f"{acc.name} not calibrated: {e.problem}")
-        return Triad(acc.name, gyro.name if gyro else None, None, None, tuple(said))
+        return Triad(acc.name, gyro.name if gyro else None, None, None, tuple(said),
+                     clock_offset_s=offset)
     if temperature:
         res = calibrate_temperature(res)
     if res.verdict is not None and not res.verdict.usable:
@@ -413,7 +416,35 @@ def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMean
             against = dataclasses.replace(fit, model=SensorModel(
                 T=fit.model.T, K=fit.model.K * g, b=fit.model.b), std_K=fit.std_K * g)
     return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said), gyro_rot,
-                 against)
+                 against, offset)
+
+
+# A clock offset below this many of the slower triad's sample steps (or 5 ms) is left alone.
+OFFSET_STEPS = 2.0
+MIN_OFFSET_CORRELATION = 0.5
+
+
+def _aligned(session: Session, sub: Session, name: str,
+             said: list[str]) -> tuple[Session, float | None]:
+    """The triad's session on the reference's clock (method.md §10): the offset of its clock
+    from the motion both saw (:func:`clock_offset`), its times moved by it where it exceeds a
+    couple of sample steps, and said; None where the clocks could not be compared."""
+    offset, corr = clock_offset(session.t_acc, session.acc, sub.t_acc, sub.acc)
+    if not np.isfinite(offset) or corr < MIN_OFFSET_CORRELATION:
+        if np.isfinite(offset):
+            said.append(f"{name}: its clock could not be compared with the reference's (their "
+                        f"motions correlate at {corr:.2f} at best): taken as the same clock")
+        return sub, None
+    limit = max(OFFSET_STEPS * max(session.acc_step, sub.acc_step), 0.005)
+    if abs(offset) <= limit:
+        return sub, offset
+    said.append(f"{name}: its clock reads {abs(offset):.3f} s "
+                f"{'ahead of' if offset > 0 else 'behind'} the reference's (from the motion "
+                f"both saw, correlation {corr:.2f}): its times moved by {-offset:+.3f} s")
+    moved = {"t_acc": sub.t_acc - offset}
+    if sub.has_gyro:
+        moved["t_gyro"] = sub.t_gyro - offset
+    return dataclasses.replace(sub, **moved), offset
 
 
 def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTurns | None:

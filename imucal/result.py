@@ -67,6 +67,9 @@ class Triad:
     # Its M2 and rotation fitted to the reference's calibrated gravity vectors (M12), its
     # output in its own calibrated unit; None without enough shared blocks.
     against_reference: AgainstReference | None = None
+    # How far its clock read ahead of the reference's (s, from the motion both saw; its times
+    # were moved by it where it exceeded a couple of sample steps); None: not compared.
+    clock_offset_s: float | None = None
 
 
 @dataclass(frozen=True)

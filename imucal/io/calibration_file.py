@@ -171,7 +171,8 @@ def _triads_dict(result: Result) -> dict:
     session of one triad writes the file it always did."""
     out = []
     for tri in result.triads:
-        entry: dict[str, Any] = {"accelerometer": tri.name, "gyroscope": tri.gyro}
+        entry: dict[str, Any] = {"accelerometer": tri.name, "gyroscope": tri.gyro,
+                                 "clock_offset_s": _f(tri.clock_offset_s)}
         if tri.result is not None:
             own = result_to_dict(tri.result)
             entry |= {"units": own["units"], "segments": own["segments"],

@@ -254,6 +254,63 @@ def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
     return TriadAgreement(rotation=fit, blocks=n, held_out_mg=held, before_mg=before, used=used)
 
 
+# --- two clocks: the offset from the motion (method.md §10) -------------------------------------
+
+ENVELOPE_STEP_S = 0.01  # the grid the two motions are compared on
+ENVELOPE_SMOOTH_S = 0.1
+MAX_OFFSET_S = 5.0
+
+
+def motion_envelope(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """(G,) how fast the direction of ``x`` turns on ``grid`` (rad/s): the unit vectors
+    averaged over each grid cell (every sample counts once: no aliasing of the noise), then
+    the central difference over ``ENVELOPE_SMOOTH_S``. The same in every triad's frame,
+    whatever its scale and bias errors to first order, and zero in still poses."""
+    u = x / np.linalg.norm(x, axis=1, keepdims=True)
+    edges = np.searchsorted(t, np.r_[grid, grid[-1] + (grid[-1] - grid[-2])])
+    csum = np.vstack([np.zeros((1, 3)), np.cumsum(u, axis=0)])
+    n = np.diff(edges)
+    cells = (csum[edges[1:]] - csum[edges[:-1]]) / np.maximum(n, 1)[:, None]
+    empty = n == 0  # a cell without a sample (a slower triad): its neighbours' value
+    if empty.any():
+        for i in range(3):
+            cells[empty, i] = np.interp(grid[empty], grid[~empty], cells[~empty, i])
+    h = max(int(round(ENVELOPE_SMOOTH_S / 2 / ENVELOPE_STEP_S)), 1)
+    rate = np.zeros(len(grid))
+    rate[h:-h] = np.linalg.norm(cells[2 * h:] - cells[:-2 * h], axis=1) / (2 * h * ENVELOPE_STEP_S)
+    return rate
+
+
+def clock_offset(t_ref: np.ndarray, x_ref: np.ndarray, t_other: np.ndarray,
+                 x_other: np.ndarray, max_lag: float = MAX_OFFSET_S) -> tuple[float, float]:
+    """How far the other triad's clock reads ahead of the reference's (s; subtract it from
+    its times), and the normalised correlation at that lag: the two motion envelopes
+    (:func:`motion_envelope`) cross-correlated by FFT over lags within ``max_lag``, the peak
+    refined by a parabola. (nan, 0) where the clocks share less than 4 ``max_lag``."""
+    lo, hi = max(t_ref[0], t_other[0]), min(t_ref[-1], t_other[-1])
+    if hi - lo < 4 * max_lag:
+        return float("nan"), 0.0
+    grid = np.arange(lo, hi, ENVELOPE_STEP_S)
+    a = motion_envelope(t_ref, x_ref, grid)
+    b = motion_envelope(t_other, x_other, grid)
+    a, b = a - a.mean(), b - b.mean()
+    n = len(a)
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    corr = np.fft.irfft(np.conj(np.fft.rfft(a, size)) * np.fft.rfft(b, size), size)
+    lag = int(round(max_lag / ENVELOPE_STEP_S))
+    lags = np.r_[np.arange(0, lag + 1), np.arange(-lag, 0)]
+    c = corr[lags]
+    k = int(np.argmax(c))
+    shift = float(lags[k])
+    if 0 < k < len(c) - 1 and lags[k - 1] == lags[k] - 1 and lags[(k + 1) % len(c)] == lags[k] + 1:
+        y0, y1, y2 = c[k - 1], c[k], c[k + 1]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            shift += 0.5 * (y0 - y2) / den
+    norm = float(np.sqrt(np.sum(a**2) * np.sum(b**2)))
+    return shift * ENVELOPE_STEP_S, float(c[k] / norm) if norm > 0 else 0.0
+
+
 # --- a triad calibrated against the reference (method.md §10, M12) ------------------------------
 
 

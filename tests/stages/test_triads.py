@@ -214,3 +214,35 @@ def test_a_noisy_triad_fitted_to_the_reference_s_gravity_vectors():
     assert rms(vec_k) < 0.8 * rms(own_k) and rms(vec_b) < 0.6 * rms(own_b)
     assert rms(vec_b) < 0.5e-3  # g: half a mg
     assert 1 / 1.5 < rms(z) < 1.5
+
+
+@pytest.mark.parametrize("offset", [0.5, -1.5])
+def test_a_triad_on_another_clock_is_put_on_the_reference_s(offset):
+    """Logged by another device: its clock half a second ahead (or 1.5 s behind). The offset is
+    measured from the motion within 10 ms, said, and the comparisons are as on one clock."""
+    import dataclasses
+
+    session, truth = make_session(poses=20, seed=3, acc_rate=200.0,
+                                  second_acc=SecondTriad(rate=400.0, gyro=True))
+    session = dataclasses.replace(session, others=tuple(
+        dataclasses.replace(s, t=s.t + offset) for s in session.others))
+    (tri,) = calibrate_triads(calibrate(session)).triads
+    assert tri.clock_offset_s == pytest.approx(offset, abs=0.01)
+    assert "its clock reads" in tri.said[0]
+    assert angle_deg(tri.agreement.rotation.R, truth.triads[0].R) < 0.05
+    assert tri.agreement.held_out_rms_mg < 1.0
+    assert angle_deg(tri.gyro_agreement.rotation.R, truth.triads[0].R) < 0.05
+
+
+def test_clock_offset_of_a_signal_against_itself():
+    from imucal.stages.triads import clock_offset
+
+    session, _ = make_session(poses=20, seed=4, acc_rate=200.0)
+    for lag in (0.0, 0.123, -2.0):
+        off, corr = clock_offset(session.t_acc, session.acc, session.t_acc + lag, session.acc)
+        assert off == pytest.approx(lag, abs=0.005) and corr > 0.95  # half a 10 ms cell
+    # Too little time shared to look 5 s either way: not compared.
+    short = slice(0, 300)
+    off, corr = clock_offset(session.t_acc[short], session.acc[short], session.t_acc[short],
+                             session.acc[short])
+    assert np.isnan(off) and corr == 0.0
