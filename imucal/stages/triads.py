@@ -259,6 +259,7 @@ def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
 ENVELOPE_STEP_S = 0.01  # the grid the two motions are compared on
 ENVELOPE_SMOOTH_S = 0.1
 MAX_OFFSET_S = 5.0
+ENVELOPE_ROWS = 1 << 18  # samples read at once
 
 
 def motion_envelope(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -266,11 +267,18 @@ def motion_envelope(t: np.ndarray, x: np.ndarray, grid: np.ndarray) -> np.ndarra
     averaged over each grid cell (every sample counts once: no aliasing of the noise), then
     the central difference over ``ENVELOPE_SMOOTH_S``. The same in every triad's frame,
     whatever its scale and bias errors to first order, and zero in still poses."""
-    u = x / np.linalg.norm(x, axis=1, keepdims=True)
-    edges = np.searchsorted(t, np.r_[grid, grid[-1] + (grid[-1] - grid[-2])])
-    csum = np.vstack([np.zeros((1, 3)), np.cumsum(u, axis=0)])
-    n = np.diff(edges)
-    cells = (csum[edges[1:]] - csum[edges[:-1]]) / np.maximum(n, 1)[:, None]
+    g = len(grid)
+    sums, n = np.zeros((g, 3)), np.zeros(g)
+    for lo in range(0, len(t), ENVELOPE_ROWS):  # a chunk of rows at a time: no N x 3 temporary
+        tc, xc = t[lo:lo + ENVELOPE_ROWS], np.asarray(x[lo:lo + ENVELOPE_ROWS], float)
+        cell = np.searchsorted(grid, tc, side="right") - 1
+        inside = (cell >= 0) & (tc < grid[-1] + (grid[-1] - grid[-2]))
+        cell, xc = cell[inside], xc[inside]
+        u = xc / np.linalg.norm(xc, axis=1, keepdims=True)
+        n += np.bincount(cell, minlength=g)
+        for i in range(3):
+            sums[:, i] += np.bincount(cell, weights=u[:, i], minlength=g)
+    cells = sums / np.maximum(n, 1)[:, None]
     empty = n == 0  # a cell without a sample (a slower triad): its neighbours' value
     if empty.any():
         for i in range(3):

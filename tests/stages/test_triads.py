@@ -246,3 +246,16 @@ def test_clock_offset_of_a_signal_against_itself():
     off, corr = clock_offset(session.t_acc[short], session.acc[short], session.t_acc[short],
                              session.acc[short])
     assert np.isnan(off) and corr == 0.0
+
+
+def test_the_motion_envelope_is_the_same_read_a_chunk_at_a_time(monkeypatch):
+    from imucal.stages import triads
+
+    session, _ = make_session(poses=6, seed=2, acc_rate=200.0)
+    grid = np.arange(session.t_acc[0], session.t_acc[-1], triads.ENVELOPE_STEP_S)
+    whole = triads.motion_envelope(session.t_acc, session.acc, grid)
+    monkeypatch.setattr(triads, "ENVELOPE_ROWS", 333)
+    np.testing.assert_allclose(triads.motion_envelope(session.t_acc, session.acc, grid), whole,
+                               rtol=1e-12, atol=1e-12)
+    assert whole.max() > 0.5  # the turns: tenths of a radian a second and more
+    assert np.median(whole) < whole.max() / 10  # the poses: still
