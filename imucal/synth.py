@@ -83,6 +83,8 @@ class TemperatureProfile:
     back: bool = False  # up to ``end`` in the first half, back down to ``start`` in the second
     # Added to the bias while cooling (g, rad/s): a hysteresis no polynomial in T models.
     acc_hysteresis: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # The accelerometer's scales: K(T) = K (1 + acc_scale (T - ref)), relative per deg C.
+    acc_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_hysteresis: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def cooling(self, t: np.ndarray, duration: float) -> np.ndarray:
@@ -113,6 +115,7 @@ class TemperatureProfile:
     def to_dict(self) -> dict:
         return {"start_degC": self.start, "end_degC": self.end, "steps": self.steps,
                 "back": self.back, "acc_hysteresis_g": list(self.acc_hysteresis),
+                "acc_scale_per_degC": list(self.acc_scale),
                 "gyro_hysteresis_rad_s": list(self.gyro_hysteresis),
                 "reference_degC": self.ref, "acc_bias_coefficients_g": [list(c) for c in self.acc],
                 "gyro_bias_coefficients_rad_s": [list(c) for c in self.gyro],
@@ -289,7 +292,11 @@ def make_session(
     raw_g += rng.normal(0, gyro_noise, raw_g.shape)
     temp_stream = None
     if temperature is not None:  # M13: the bias moves with heat, in g and rad/s
-        raw_a += temperature.acc_drift(temperature.at(t_a, duration))
+        heat_a = temperature.at(t_a, duration)
+        # K(T): the raw reading about the bias shrinks as the scale grows (M2 inverted)
+        raw_a = acc_truth.b + (raw_a - acc_truth.b) / (
+            1.0 + np.asarray(temperature.acc_scale)[None, :] * (heat_a - temperature.ref)[:, None])
+        raw_a += temperature.acc_drift(heat_a)
         raw_g += temperature.gyro_drift(temperature.at(t_g, duration))
         raw_a += np.outer(temperature.cooling(t_a, duration), temperature.acc_hysteresis)
         raw_g += np.outer(temperature.cooling(t_g, duration), temperature.gyro_hysteresis)

@@ -153,14 +153,20 @@ def result_to_dict(result: Result) -> dict:
 def _temperature_dict(result: Result) -> dict:
     """Each sensor's bias in temperature (method.md §11, M13); only written when fitted."""
     out = {"model": "b(T) = b0 + sum_j coefficients[j] (T - reference_degC)^j, T held inside "
-                    "span_degC (never extrapolated), raw units per degC^j (method.md M13)"}
+                    "span_degC (never extrapolated), raw units per degC^j (method.md M13); "
+                    "the accelerometer's K(T) = K (1 + scale_slope_per_degC (T - "
+                    "reference_degC)) where a slope was fitted"}
     for f in result.temperature:
         out[f.sensor] = {
             "b0": _fl(f.b0), "reference_degC": _f(f.t0), "span_degC": [_f(f.span[0]),
                                                                        _f(f.span[1])],
             "order": f.order, "coefficients": _fl(f.coefs),
             "cv_rms_by_order": [_f(v) if np.isfinite(v) else None for v in f.cv_rms],
-            "static_blocks": f.blocks, "hysteresis": f.hysteresis, "notes": list(f.notes)}
+            "static_blocks": f.blocks, "hysteresis": f.hysteresis,
+            "scale_slope_per_degC": None if f.scale_slope is None else _fl(f.scale_slope),
+            "notes": list(f.notes)} | (
+            # M2's T and K fitted beside the polynomial (M14): the model b(T) belongs to
+            {"T": _fl(f.model.T), "K": _fl(f.model.K)} if f.model is not None else {})
     return out
 
 

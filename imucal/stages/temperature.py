@@ -67,12 +67,26 @@ class BiasPolynomial:
     used: np.ndarray | None = None  # (n,) block indices
     temps: np.ndarray | None = None  # (n,) those blocks' temperatures, deg C (the data points)
     hysteresis: str | None = None  # heating against cooling, said (method.md §11)
+    # (3,) the scales' relative change per deg C about T_0 where the data determine it
+    # (cross-validated beside the bias's order); None: the scales held constant.
+    scale_slope: np.ndarray | None = None
 
     def calibrated(self, raw: np.ndarray, temp: np.ndarray) -> np.ndarray:
         """(N, 3) ``T K (raw - b(T))`` (M2 with M13's bias) of raw readings at temperatures
         ``temp``; needs :attr:`model`."""
         m = self.model
-        return (np.asarray(raw, float) - self.bias_at(temp)) @ m.matrix.T
+        out = (np.asarray(raw, float) - self.bias_at(temp)) * m.K[None, :]
+        if self.scale_slope is not None:
+            x = np.clip(np.asarray(temp, float).reshape(-1), *self.span) - self.t0
+            out *= 1.0 + self.scale_slope[None, :] * x[:, None]
+        return out @ m.T.T
+
+    def scale_at(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the scales K at temperatures ``temp`` (needs :attr:`model`), constant
+        outside the span."""
+        x = np.clip(np.asarray(temp, float).reshape(-1), *self.span) - self.t0
+        slope = np.zeros(3) if self.scale_slope is None else self.scale_slope
+        return self.model.K[None, :] * (1.0 + slope[None, :] * x[:, None])
 
     def bias_at(self, temp: np.ndarray) -> np.ndarray:
         """(N, 3) the bias at temperatures ``temp``, constant outside the span (never
@@ -182,38 +196,52 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
     half = max((hi - lo) / 2, 1e-6)
     x = (temps - t0) / half
 
-    def design(rows: np.ndarray, order: int) -> np.ndarray:
+    def design(rows: np.ndarray, order: int, slope: bool = False) -> np.ndarray:
         poly = [jac[rows, 6:9] * x[rows, None] ** j for j in range(1, order + 1)]
-        return np.hstack([jac[rows], *poly])
+        scale = [jac[rows, 3:6] * x[rows, None]] if slope else []
+        return np.hstack([jac[rows], *poly, *scale])
 
     fold = np.empty(b, int)
     fold[np.argsort(temps, kind="stable")] = np.arange(b) % FOLDS
-    cv = np.full(len(ORDERS), np.nan)
-    for p in ORDERS:
-        if b - int(np.ceil(b / FOLDS)) < 9 + 3 * p + 2:
-            break
+    # Candidates (order, scale slope), fewest unknowns first: the bias of order 0-3, each with
+    # and without a linear slope of the scales (where the data determine one, method.md §11).
+    candidates = sorted(((p, sl) for p in ORDERS for sl in (False, True)),
+                        key=lambda c: (3 * c[0] + 3 * c[1], c[0]))
+    cv_of: dict[tuple[int, bool], float] = {}
+    for p, sl in candidates:
+        if b - int(np.ceil(b / FOLDS)) < 9 + 3 * p + 3 * sl + 2:
+            continue
         err = np.empty(b)
         for f in range(FOLDS):
             test = fold == f
-            sol, *_ = np.linalg.lstsq(design(~test, p), -r[~test], rcond=None)
-            err[test] = r[test] + design(test, p) @ sol
-        cv[p] = float(np.sqrt(np.mean(err**2)))
+            sol, *_ = np.linalg.lstsq(design(~test, p, sl), -r[~test], rcond=None)
+            err[test] = r[test] + design(test, p, sl) @ sol
+        cv_of[p, sl] = float(np.sqrt(np.mean(err**2)))
+    cv = np.array([cv_of.get((p, False), np.nan) for p in ORDERS])
     notes = []
-    if np.all(np.isnan(cv)):
+    slope = False
+    if not cv_of:
         order = 0
         notes.append(f"accelerometer: {b} still blocks with a temperature: too few to fit a "
                      "bias in temperature beside M2's 9 parameters")
     else:
-        order = int(min(p for p in ORDERS if np.isfinite(cv[p])
-                        and cv[p] <= CV_TOLERANCE * np.nanmin(cv)))
-    full = design(np.ones(b, bool), order)
+        best = min(cv_of.values())
+        order, slope = next(c for c in candidates
+                            if c in cv_of and cv_of[c] <= CV_TOLERANCE * best)
+    full = design(np.ones(b, bool), order, slope)
     sol, *_ = np.linalg.lstsq(full, -r, rcond=None)
     dof = max(b - full.shape[1], 1)
     cov = np.linalg.pinv(full.T @ full)[:9, :9] * float(np.sum((r + full @ sol) ** 2)) / dof
-    c = sol[9:].reshape(order, 3) / half ** np.arange(1, order + 1)[:, None]
+    c = sol[9:9 + 3 * order].reshape(order, 3) / half ** np.arange(1, order + 1)[:, None]
     coefs = np.vstack([sol[6:9][None, :], c])  # the constant's correction, then c_1..c_p
     b0 = models[0].b
     corrected = acc_model(np.r_[params[0][:6] + sol[:6], b0])
+    scale_slope = None
+    if slope:  # K(T) = K (1 + k (T - T_0)), k relative per deg C
+        scale_slope = sol[-3:] / half / corrected.K
+        notes.append("accelerometer: scales change with temperature by "
+                     + ", ".join(f"{v * 1e6:+.0f}" for v in scale_slope)
+                     + " ppm per deg C (x, y, z), which the still poses determine")
     hyst = None
     if legs is not None and min((legs > 0).sum(), (legs < 0).sum()) >= MIN_LEG_BLOCKS:
         step = jac[:, 6:9] * ((legs < 0).astype(float) - (legs > 0))[:, None] / 2
@@ -237,7 +265,7 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                           span=(lo, hi), order=order, coefs=coefs, cv_rms=cv, blocks=b,
                           notes=tuple(notes), model=corrected, cov=cov,
                           residuals=(r + full @ sol) / g * 1e3, used=np.flatnonzero(ok),
-                          temps=temps, hysteresis=hyst)
+                          temps=temps, hysteresis=hyst, scale_slope=scale_slope)
 
 
 # A block is on a heating or cooling leg where the temperature moves faster than this.

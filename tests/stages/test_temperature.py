@@ -138,3 +138,21 @@ def test_heating_and_cooling_legs_are_compared(step):
                 assert size == pytest.approx(truth, rel=0.15)
             else:
                 assert said.endswith("no hysteresis beyond the noise")
+
+
+def test_scales_that_change_with_temperature_are_found_and_constant_ones_are_not():
+    """K(T) = K (1 + k (T - 30)) with k = (100, -50, 80) ppm per deg C: the slope is chosen by
+    the cross-validation and measured within 30 ppm per deg C, the bias still within 1 mg; with
+    constant scales no slope is fitted."""
+    slope = np.array([1e-4, -5e-5, 8e-5])
+    for seed in range(3):
+        result, truth = _fit(seed, TemperatureProfile(acc_scale=tuple(slope)))
+        acc = result.temperature[0]
+        assert acc.scale_slope is not None
+        np.testing.assert_allclose(acc.scale_slope, slope, atol=3e-5)
+        assert any("ppm per deg C" in n for n in acc.notes)
+        grid = np.linspace(*acc.span, 301)
+        err = (acc.bias_at(grid) - truth.acc_bias_at(grid)) * 1e3
+        assert np.sqrt(np.mean(err**2)) < 1.0
+        flat, _ = _fit(seed, QUADRATIC)
+        assert flat.temperature[0].scale_slope is None
