@@ -588,3 +588,44 @@ def calibrate_temperature(result: Result) -> Result:
                                     hysteresis=hyst)
         out.append(dataclasses.replace(f, notes=said + f.notes))
     return dataclasses.replace(result, temperature=tuple(out))
+
+
+def calibrate_same_device(results: Sequence[Result]) -> Result:
+    """The first run with each sensor's bias in temperature (M13, M14) fitted to the still
+    blocks of every run, sessions of one device recorded at different temperatures
+    (``--same-device``): the blocks pooled at their own temperatures, linearised at the first
+    run's M2. Each session must hold a temperature stream, and all the same raw units."""
+    first = results[0]
+    if first.triads:
+        raise ValueError("calibrate_same_device comes before calibrate_triads")
+    temps, means, gyro, models, legs = [], [], [], [], []
+    acc_model0 = first.segments[0].acc.model
+    gyro_fit = first.segments[0].gyro
+    for r in results:
+        s = r.session
+        stream = _temp_stream(s)
+        if stream is None:
+            raise ImucalError("--same-device: the session holds no temperature stream (a temp "
+                              "column, or a log's)", source=s.source, field="temperature")
+        if s.acc_unit != first.session.acc_unit or s.gyro_unit != first.session.gyro_unit:
+            raise ImucalError(f"--same-device: units {s.acc_unit}, {s.gyro_unit} differ from "
+                              f"the first session's ({first.session.acc_unit}, "
+                              f"{first.session.gyro_unit})", source=s.source, field="units")
+        temps.append(block_temperatures(stream.t, stream.values, r.block_times))
+        legs.append(block_legs(stream.t, stream.values, r.block_times))
+        means.append(r.detection.means)
+        models += [acc_model0] * len(r.detection.blocks)
+        if gyro_fit is not None and s.has_gyro:
+            gyro.append(interval_means(s.t_gyro, lambda a, b, s=s: s.gyro[a:b], r.block_times,
+                                       1.0).means)
+    block_t = np.concatenate(temps)
+    fits = [fit_accel_bias_polynomial(block_t, np.concatenate(means), models,
+                                      first.calibration.g, np.concatenate(legs))]
+    if gyro_fit is not None and len(gyro) == len(results):
+        fits.append(fit_bias_polynomial(block_t, np.concatenate(gyro) - gyro_fit.model.b,
+                                        gyro_fit.model.b, "gyroscope"))
+    levels = ", ".join(f"{float(np.nanmean(t)):.1f}" for t in temps)
+    said = (f"from {len(results)} sessions of one device at {levels} deg C (their still poses "
+            "pooled, each at its own temperature)",)
+    return dataclasses.replace(first, temperature=tuple(
+        dataclasses.replace(f, notes=said + f.notes) for f in fits if f is not None))

@@ -94,6 +94,11 @@ def calibrate(
         "--temperature", help="Fit each sensor's bias as a polynomial in the file's temperature "
                               "stream (order 0-3 by cross-validation; never extrapolated "
                               "beyond the temperatures seen; method.md §11).")] = False,
+    same_device: Annotated[list[Path] | None, typer.Option(
+        "--same-device", metavar="SESSION", show_default=False,
+        help="Another recording of the same device at another temperature (repeat for "
+             "several): the bias in temperature is fitted to all their still poses "
+             "(method.md §11); implies --temperature.")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -107,7 +112,7 @@ def calibrate(
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    inputs = [session, load_kw["gyro_path"], spec]
+    inputs = [session, load_kw["gyro_path"], spec, *(same_device or [])]
     check_inputs(inputs)
     limits = None
     if spec is not None:
@@ -142,7 +147,16 @@ def calibrate(
                 # A file no triad calibrates from (a flight): where to see its IMUs anyway.
                 raise ImucalError(f"{e.problem}; imucal inspect shows how the file's IMUs "
                                   "disagree as logged", source=e.source, field=e.field) from None
-        if temperature:
+        if same_device:
+            from imucal.pipeline import calibrate_same_device
+
+            runs = [result]
+            for other in same_device:
+                with progress.stage(f"calibrating {other.name} (the same device)"):
+                    runs.append(imucal.calibrate(imucal.load_session(other, **load_kw),
+                                                 **settings))
+            result = calibrate_same_device(runs)
+        elif temperature:
             from imucal.pipeline import calibrate_temperature
 
             result = calibrate_temperature(result)
@@ -154,7 +168,8 @@ def calibrate(
             from imucal.pipeline import calibrate_triads
 
             with progress.stage("calibrating the other triads"):
-                result = calibrate_triads(result, "all" if all_imus else triad, temperature)
+                result = calibrate_triads(result, "all" if all_imus else triad,
+                                          temperature or bool(same_device))
         if limits is not None:
             result = _judged_by_spec(result, limits)
         if result.verdict is not None and not result.verdict.usable and not allow_poor:

@@ -100,6 +100,12 @@ class BiasPolynomial:
         return self.span[1] - self.span[0]
 
 
+def _levels(temps: np.ndarray) -> int:
+    """Distinct temperatures (to 1 deg C): a polynomial of order p needs p + 1 of them (several
+    sessions each at one temperature give one level each)."""
+    return len(np.unique(np.round(temps)))
+
+
 def _design(x: np.ndarray, order: int) -> np.ndarray:
     return np.vander(x, order + 1, increasing=True)
 
@@ -123,8 +129,8 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
     fold[np.argsort(temps, kind="stable")] = np.arange(b) % FOLDS
     cv = np.full(len(ORDERS), np.nan)
     for p in ORDERS:
-        if b - int(np.ceil(b / FOLDS)) < p + 2:  # each training set must over-determine it
-            break
+        if b - int(np.ceil(b / FOLDS)) < p + 2 or p >= _levels(temps):
+            break  # each training set must over-determine it, at enough temperatures
         err = np.empty_like(d)
         for f in range(FOLDS):
             test = fold == f
@@ -209,7 +215,7 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                         key=lambda c: (3 * c[0] + 3 * c[1], c[0]))
     cv_of: dict[tuple[int, bool], float] = {}
     for p, sl in candidates:
-        if b - int(np.ceil(b / FOLDS)) < 9 + 3 * p + 3 * sl + 2:
+        if b - int(np.ceil(b / FOLDS)) < 9 + 3 * p + 3 * sl + 2 or p + sl >= _levels(temps):
             continue
         err = np.empty(b)
         for f in range(FOLDS):

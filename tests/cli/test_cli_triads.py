@@ -80,3 +80,33 @@ def test_temperature_from_a_temp_column(tmp_path: Path):
     assert "bias of order 2 in temperature" in warm.stdout
     assert none.returncode == 1 and "no temperature stream" in none.stderr
     assert not (tmp_path / "no.json").exists()
+
+
+def test_same_device_from_three_tables(tmp_path: Path):
+    from imucal.synth import TemperatureProfile, random_acc_model, random_gyro_model
+
+    rng = np.random.default_rng(9)
+    acc, gyro = random_acc_model(rng), random_gyro_model(rng)
+    names = []
+    for i, temp in enumerate((15.0, 30.0, 45.0)):
+        session, truth = make_session(poses=20, seed=i, acc_rate=200.0, acc_truth=acc,
+                                      gyro_truth=gyro,
+                                      temperature=TemperatureProfile(start=temp, end=temp,
+                                                                     acc=((4e-4, -3e-4, 2e-4),),
+                                                                     gyro=((1e-4, 0, 0),)))
+        table = {"t": session.t_acc, "temp": np.interp(session.t_acc, session.others[0].t,
+                                                       session.others[0].values[:, 0])}
+        for k, ax in enumerate("xyz"):
+            table[f"a{ax}"] = session.acc[:, k]
+            table[f"g{ax}"] = session.gyro[:, k]
+        names.append(f"t{i}.csv")
+        pl.DataFrame(table).write_csv(tmp_path / names[-1])
+    proc = _imucal("calibrate", names[0], "--same-device", names[1], "--same-device", names[2],
+                   "--out", "dev.json", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    d = json.loads((tmp_path / "dev.json").read_text())["temperature"]
+    assert d["accelerometer"]["order"] == 1 and d["gyroscope"]["order"] == 1
+    # The accelerometer's slope: the truth's 0.4, -0.3, 0.2 mg per deg C, within 0.02.
+    np.testing.assert_allclose(d["accelerometer"]["coefficients"][1],
+                               [4e-4, -3e-4, 2e-4], atol=2e-5)
+    assert "from 3 sessions of one device at 15.0, 30.0, 45.0 deg C" in proc.stdout

@@ -3,6 +3,7 @@ order chosen by cross-validation, never extrapolated; on synthetic ramps with th
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -156,3 +157,44 @@ def test_scales_that_change_with_temperature_are_found_and_constant_ones_are_not
         assert np.sqrt(np.mean(err**2)) < 1.0
         flat, _ = _fit(seed, QUADRATIC)
         assert flat.temperature[0].scale_slope is None
+
+
+def _device_sessions(seed: int, temps: tuple[float, ...], profile: TemperatureProfile):
+    """Sessions of one device (the same M2 and M4), each at one temperature, other poses."""
+    from imucal.synth import random_acc_model, random_gyro_model
+
+    rng = np.random.default_rng(100 + seed)
+    acc, gyro = random_acc_model(rng), random_gyro_model(rng)
+    out = []
+    for i, temp in enumerate(temps):
+        out.append(make_session(poses=20, seed=10 * seed + i, acc_rate=200.0, acc_truth=acc,
+                                gyro_truth=gyro, temperature=dataclasses.replace(
+                                    profile, start=temp, end=temp)))
+    return out
+
+
+def test_sessions_of_one_device_at_five_temperatures():
+    """--same-device: five sessions at 15-45 deg C, each at one temperature: the pooled still
+    poses give the truth's order and the bias within 1 mg and 0.02 deg/s between them."""
+    from imucal.pipeline import calibrate_same_device
+
+    for seed in range(2):
+        runs = _device_sessions(seed, (15.0, 22.0, 30.0, 37.0, 45.0), QUADRATIC)
+        result = calibrate_same_device([calibrate(s) for s, _ in runs])
+        truth = runs[0][1]
+        acc, gyro = result.temperature
+        assert (acc.order, gyro.order) == (2, 2)
+        assert acc.span == pytest.approx((15.0, 45.0), abs=0.2)
+        assert "from 5 sessions of one device" in acc.notes[0]
+        acc_mg, gyro_dps = _residuals(result, truth)
+        assert acc_mg <= 1.0 and gyro_dps <= 0.02
+
+
+def test_same_device_without_a_temperature_is_one_line():
+    from imucal.errors import ImucalError
+    from imucal.pipeline import calibrate_same_device
+
+    warm, _ = make_session(poses=12, seed=1, temperature=QUADRATIC)
+    cold, _ = make_session(poses=12, seed=2)
+    with pytest.raises(ImucalError, match="--same-device: the session holds no temperature"):
+        calibrate_same_device([calibrate(warm), calibrate(cold)])
