@@ -308,7 +308,7 @@ def _check_blocks(session: Session, det: Detection, settings: Settings, g_in: fl
 __all__ = ["Result", "Segment", "Settings", "calibrate", "select_points", "make_nominal"]
 
 
-# --- several triads in one device (method.md §10) -----------------------------------------------
+# --- several triads in one device (method.md §11) -----------------------------------------------
 
 
 def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
@@ -316,7 +316,7 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
     """The run ``result`` with the session's other accelerometer triads (``Session.others``):
     each calibrated with the whole method on its own samples (with its own IMU's gyroscope where
     the session has one), and its rotation to ``result``'s triad, the reference, estimated from
-    the reference's still blocks (M9, M10) with the triads' held-out agreement. ``which`` is
+    the reference's still blocks (M12, M13) with the triads' held-out agreement. ``which`` is
     ``"all"`` or the names of the triads to take (a stream's instance, its IMU, or its name). A
     triad that cannot be calibrated is said in its ``said``, never stops the run. With
     ``temperature``, each triad's bias in temperature too (:func:`calibrate_temperature`, on
@@ -349,7 +349,7 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
 
 def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
                   ) -> TriadModels:
-    """A run's accelerometer fits for the rotation's error (M10): each of the reference's
+    """A run's accelerometer fits for the rotation's error (M13): each of the reference's
     blocks (``block_times``) in the segment whose span holds its middle, else the nearest."""
     mid = block_times.mean(axis=1)
     spans = np.array([[s.t_start, s.t_end] for s in result.segments])
@@ -357,7 +357,7 @@ def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
     covs = tuple(s.acc.cov for s in result.segments)
     fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
     if fit is not None and fit.cov is not None and len(covs) == 1:
-        # The constant fit's covariance holds the drift it could not model; M14's does not.
+        # The constant fit's covariance holds the drift it could not model; M17's does not.
         covs = (fit.cov,)
     return TriadModels(raw_means=raw_means, segment_of_block=np.argmin(outside, axis=1),
                        params=tuple(s.acc.params for s in result.segments),
@@ -426,7 +426,7 @@ MIN_OFFSET_CORRELATION = 0.5
 
 def _aligned(session: Session, sub: Session, name: str,
              said: list[str]) -> tuple[Session, float | None]:
-    """The triad's session on the reference's clock (method.md §10): the offset of its clock
+    """The triad's session on the reference's clock (method.md §11): the offset of its clock
     from the motion both saw (:func:`clock_offset`), its times moved by it where it exceeds a
     couple of sample steps, and said; None where the clocks could not be compared."""
     offset, corr = clock_offset(session.t_acc, session.acc, sub.t_acc, sub.acc)
@@ -449,7 +449,7 @@ def _aligned(session: Session, sub: Session, name: str,
 
 def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTurns | None:
     """The turns between the reference's still blocks as ``result``'s calibrated gyroscope
-    measures them (each turn with its segment's model; M11); None without a calibrated
+    measures them (each turn with its segment's model; M14); None without a calibrated
     gyroscope or with fewer than two blocks."""
     segs = result.segments
     if not session.has_gyro or any(s.gyro is None for s in segs) or len(block_times) < 2:
@@ -474,7 +474,7 @@ def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTur
 
 def _with_temperature(result: Result, means: BlockMeans, raw_means: np.ndarray,
                       block_times: np.ndarray) -> BlockMeans:
-    """The calibrated block means with the bias at each block's temperature (M13) where the
+    """The calibrated block means with the bias at each block's temperature (M16) where the
     run fitted one for its accelerometer: a triad compared at the temperature it was at."""
     fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
     stream = _temp_stream(result.session)
@@ -541,11 +541,11 @@ def _triad_session(session: Session, acc: Stream, gyro: Stream | None,
                    chosen=tuple(f"{s.name} ({s.origin})" for s in (acc, gyro) if s is not None))
 
 
-# --- temperature (method.md §11) -----------------------------------------------------------------
+# --- temperature (method.md §12) -----------------------------------------------------------------
 
 
 def calibrate_temperature(result: Result) -> Result:
-    """The run ``result`` with each sensor's bias a polynomial in temperature (M13, M14), from
+    """The run ``result`` with each sensor's bias a polynomial in temperature (M16, M17), from
     the session's temperature stream (the one of the calibrated accelerometer's instance where
     there are several), at each still block. A run the grouping (§2) split into segments is
     calibrated again as one segment first, and said: with a temperature stream a bias that
@@ -582,7 +582,7 @@ def calibrate_temperature(result: Result) -> Result:
     for f in fits:
         if f is None:
             continue
-        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M14
+        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M17
             hyst = hysteresis(f, legs, *unit)
             f = dataclasses.replace(f, notes=f.notes + ((hyst,) if hyst else ()),
                                     hysteresis=hyst)
@@ -591,7 +591,7 @@ def calibrate_temperature(result: Result) -> Result:
 
 
 def calibrate_same_device(results: Sequence[Result]) -> Result:
-    """The first run with each sensor's bias in temperature (M13, M14) fitted to the still
+    """The first run with each sensor's bias in temperature (M16, M17) fitted to the still
     blocks of every run, sessions of one device recorded at different temperatures
     (``--same-device``): the blocks pooled at their own temperatures, linearised at the first
     run's M2. Each session must hold a temperature stream, and all the same raw units."""

@@ -146,7 +146,7 @@ def _overview(result: Result) -> tuple[Line, ...]:
 
 
 def _triads(result: Result) -> tuple[Line, ...]:
-    """The other triads (method.md §10): each one's rotation to the reference and how well the
+    """The other triads (method.md §11): each one's rotation to the reference and how well the
     two agree once calibrated, then what was said about it."""
     out = []
     for tri in result.triads:

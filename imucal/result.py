@@ -52,11 +52,11 @@ class Segment:
 
 @dataclass(frozen=True)
 class Triad:
-    """Another accelerometer triad of the session (method.md §10): its own run of the whole
+    """Another accelerometer triad of the session (method.md §11): its own run of the whole
     method (``result``: None where it could not be calibrated, ``said`` tells why), with its
     gyroscope where its IMU has one, and its rotation to the reference and agreement with it
     once calibrated (``agreement``: None without enough shared still blocks), and its
-    gyroscope's rotation to the reference's from the turns (``gyro_agreement``, M11)."""
+    gyroscope's rotation to the reference's from the turns (``gyro_agreement``, M14)."""
 
     name: str  # the accelerometer stream's name, e.g. "acc sensor_accel:1"
     gyro: str | None  # the gyroscope stream calibrated with it, if any
@@ -64,7 +64,7 @@ class Triad:
     agreement: TriadAgreement | None
     said: tuple[str, ...] = ()
     gyro_agreement: GyroAgreement | None = None
-    # Its M2 and rotation fitted to the reference's calibrated gravity vectors (M12), its
+    # Its M2 and rotation fitted to the reference's calibrated gravity vectors (M15), its
     # output in its own calibrated unit; None without enough shared blocks.
     against_reference: AgainstReference | None = None
     # How far its clock read ahead of the reference's (s, from the motion both saw; its times
@@ -96,9 +96,9 @@ class Result:
     guide: Guide | None = None  # poses, holds and turns against the limits; what to record
     verdict: Verdict | None = None  # good / usable with caveats / not usable, and why
     # The session's other triads, each calibrated on its own and put in this run's frame
-    # (method.md §10; imucal.pipeline.calibrate_triads); empty for a session of one triad.
+    # (method.md §11; imucal.pipeline.calibrate_triads); empty for a session of one triad.
     triads: tuple[Triad, ...] = ()
-    # Each sensor's bias as a polynomial in temperature (method.md §11;
+    # Each sensor's bias as a polynomial in temperature (method.md §12;
     # imucal.pipeline.calibrate_temperature); empty unless asked for and a stream is there.
     temperature: tuple[BiasPolynomial, ...] = ()
 

@@ -36,8 +36,8 @@ class Truth:
     gyro_drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
     g: float = 1.0
     pose_times: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    triads: tuple[TriadTruth, ...] = ()  # the session's other accelerometer triads (§10)
-    temperature: TemperatureProfile | None = None  # the bias's drift with heat (§11)
+    triads: tuple[TriadTruth, ...] = ()  # the session's other accelerometer triads (§11)
+    temperature: TemperatureProfile | None = None  # the bias's drift with heat (§12)
 
     def to_dict(self) -> dict:
         def m(model: SensorModel | None) -> dict | None:
@@ -54,12 +54,12 @@ class Truth:
                     {"temperature": self.temperature.to_dict()} if self.temperature else {})
 
     def acc_bias_at(self, temp: np.ndarray) -> np.ndarray:
-        """(N, 3) the accelerometer's true bias (raw unit) at temperatures ``temp`` (M13)."""
+        """(N, 3) the accelerometer's true bias (raw unit) at temperatures ``temp`` (M16)."""
         extra = 0.0 if self.temperature is None else self.temperature.acc_drift(temp)
         return self.acc.b + extra * self.g
 
     def gyro_bias_at(self, temp: np.ndarray) -> np.ndarray:
-        """(N, 3) the gyroscope's true bias (rad/s) at temperatures ``temp`` (M13)."""
+        """(N, 3) the gyroscope's true bias (rad/s) at temperatures ``temp`` (M16)."""
         extra = 0.0 if self.temperature is None else self.temperature.gyro_drift(temp)
         return self.gyro.b + extra
 
@@ -67,7 +67,7 @@ class Truth:
 @dataclass(frozen=True)
 class TemperatureProfile:
     """The device's temperature over a session and what it does to the biases (method.md
-    §11, M13): a linear ramp from ``start`` to ``end`` deg C (``steps`` > 0: that many equal
+    §12, M16): a linear ramp from ``start`` to ``end`` deg C (``steps`` > 0: that many equal
     steps instead), logged at ``rate`` Hz with ``noise`` deg C; the accelerometer's bias moves
     by ``sum_j acc[j-1] (T - ref)^j`` g and the gyroscope's by ``sum_j gyro[j-1] (T - ref)^j``
     rad/s, each a (p, 3) array of coefficients per deg C^j (p the true order)."""
@@ -119,12 +119,12 @@ class TemperatureProfile:
                 "gyro_hysteresis_rad_s": list(self.gyro_hysteresis),
                 "reference_degC": self.ref, "acc_bias_coefficients_g": [list(c) for c in self.acc],
                 "gyro_bias_coefficients_rad_s": [list(c) for c in self.gyro],
-                "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M13)"}
+                "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M16)"}
 
 
 @dataclass(frozen=True)
 class SecondTriad:
-    """A second accelerometer triad in the same device (method.md §10): turned by a random
+    """A second accelerometer triad in the same device (method.md §11): turned by a random
     rotation of ``rotation_deg`` about a random axis from the first, clipped at ``range_g``, with
     its own errors, noise (g per sample), rate and clock (started a random fraction of a sample
     late)."""
@@ -142,7 +142,7 @@ class SecondTriad:
 
 @dataclass(frozen=True)
 class TriadTruth:
-    """What made a second triad: ``u = R v`` takes its calibrated frame to the first's (M9)."""
+    """What made a second triad: ``u = R v`` takes its calibrated frame to the first's (M12)."""
 
     name: str
     model: SensorModel  # M2 in the triad's raw unit
@@ -291,7 +291,7 @@ def make_session(
     raw_g = _distort(w, t_g, gyro_truth, gyro2, t_change) + drift * t_g[:, None]
     raw_g += rng.normal(0, gyro_noise, raw_g.shape)
     temp_stream = None
-    if temperature is not None:  # M13: the bias moves with heat, in g and rad/s
+    if temperature is not None:  # M16: the bias moves with heat, in g and rad/s
         heat_a = temperature.at(t_a, duration)
         # K(T): the raw reading about the bias shrinks as the scale grows (M2 inverted)
         raw_a = acc_truth.b + (raw_a - acc_truth.b) / (
@@ -341,8 +341,8 @@ def make_session(
 
 def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
                   acc_unit: str, number: int = 2) -> tuple[tuple[Stream, ...], TriadTruth]:
-    """The second accelerometer's stream (and its gyroscope's) and truth (method.md §10, M9:
-    ``u = R v``; the gyroscope in the same frame, so M11's rotation is ``R`` too)."""
+    """The second accelerometer's stream (and its gyroscope's) and truth (method.md §11, M12:
+    ``u = R v``; the gyroscope in the same frame, so M14's rotation is ``R`` too)."""
     if acc_unit not in ("g", "m/s^2"):
         raise ValueError(f"a second triad is made in g or m/s^2, not {acc_unit!r}")
     rng = np.random.default_rng([seed, 2] if number == 2 else [seed, 2, number])

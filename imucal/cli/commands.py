@@ -85,7 +85,7 @@ def calibrate(
         "--all-imus", help="Also calibrate every other accelerometer triad of the file (other "
                            "IMUs of a log, a2x… columns), each with its own gyroscope, and put "
                            "each in the reference's frame: the calibrated one, which "
-                           "--acc/--gyro choose (method.md §10).")] = False,
+                           "--acc/--gyro choose (method.md §11).")] = False,
     triad: Annotated[list[str] | None, typer.Option(
         "--triad", metavar="NAME", help="Also calibrate this other accelerometer triad (a "
                                         "stream or IMU name; repeat for several), as "
@@ -93,12 +93,12 @@ def calibrate(
     temperature: Annotated[bool, typer.Option(
         "--temperature", help="Fit each sensor's bias as a polynomial in the file's temperature "
                               "stream (order 0-3 by cross-validation; never extrapolated "
-                              "beyond the temperatures seen; method.md §11).")] = False,
+                              "beyond the temperatures seen; method.md §12).")] = False,
     same_device: Annotated[list[Path] | None, typer.Option(
         "--same-device", metavar="SESSION", show_default=False,
         help="Another recording of the same device at another temperature (repeat for "
              "several): the bias in temperature is fitted to all their still poses "
-             "(method.md §11); implies --temperature.")] = None,
+             "(method.md §12); implies --temperature.")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:

@@ -151,9 +151,9 @@ def result_to_dict(result: Result) -> dict:
 
 
 def _temperature_dict(result: Result) -> dict:
-    """Each sensor's bias in temperature (method.md §11, M13); only written when fitted."""
+    """Each sensor's bias in temperature (method.md §12, M16); only written when fitted."""
     out = {"model": "b(T) = b0 + sum_j coefficients[j] (T - reference_degC)^j, T held inside "
-                    "span_degC (never extrapolated), raw units per degC^j (method.md M13); "
+                    "span_degC (never extrapolated), raw units per degC^j (method.md M16); "
                     "the accelerometer's K(T) = K (1 + scale_slope_per_degC (T - "
                     "reference_degC)) where a slope was fitted"}
     for f in result.temperature:
@@ -165,13 +165,13 @@ def _temperature_dict(result: Result) -> dict:
             "static_blocks": f.blocks, "hysteresis": f.hysteresis,
             "scale_slope_per_degC": None if f.scale_slope is None else _fl(f.scale_slope),
             "notes": list(f.notes)} | (
-            # M2's T and K fitted beside the polynomial (M14): the model b(T) belongs to
+            # M2's T and K fitted beside the polynomial (M17): the model b(T) belongs to
             {"T": _fl(f.model.T), "K": _fl(f.model.K)} if f.model is not None else {})
     return out
 
 
 def _triads_dict(result: Result) -> dict:
-    """The session's other triads (method.md §10): each one's own calibration (its segments,
+    """The session's other triads (method.md §11): each one's own calibration (its segments,
     quality and verdict, as for the reference), its rotation to the reference with the standard
     error, and the agreement of the two once calibrated. Only written when there are some, so a
     session of one triad writes the file it always did."""
@@ -199,7 +199,7 @@ def _triads_dict(result: Result) -> dict:
                                  "after_held_out": {"rms": _f(a.held_out_rms_mg),
                                                     "max": _f(float(np.max(a.held_out_mg)))}},
             }
-        if tri.gyro_agreement is not None:  # M11: the gyroscope's own rotation, from the turns
+        if tri.gyro_agreement is not None:  # M14: the gyroscope's own rotation, from the turns
             ga = tri.gyro_agreement
             gr = ga.rotation
             entry["gyroscope_rotation"] = {
@@ -210,7 +210,7 @@ def _triads_dict(result: Result) -> dict:
                 "turns": ga.turns, "turn_residual_rms_deg": _f(ga.residual_rms_deg),
                 "angle_to_accelerometer_rotation_deg": _f(ga.accel_difference_deg)}
         v = tri.against_reference
-        if v is not None:  # M12: its M2 fitted to the reference's calibrated gravity vectors
+        if v is not None:  # M15: its M2 fitted to the reference's calibrated gravity vectors
             entry["against_reference"] = {
                 "T": _fl(v.model.T), "K": _fl(v.model.K), "b": _fl(v.model.b),
                 "std": {n: _f(x) for n, x in zip(("s_x", "s_y", "s_z", "b_x", "b_y", "b_z"),
@@ -218,13 +218,13 @@ def _triads_dict(result: Result) -> dict:
                 "rotation_to_reference": _fl(v.R), "residual_rms_mg": _f(v.rms_mg),
                 "static_blocks": v.blocks,
                 "note": "the triad's M2 fitted to the reference's calibrated gravity vectors "
-                        "(method.md M12): three equations per still block; the reference's own "
+                        "(method.md M15): three equations per still block; the reference's own "
                         "errors pass into it and are not in these standard errors"}
         entry["said"] = list(tri.said)
         out.append(entry)
     chosen = result.session.chosen
     return {"reference": chosen[0] if chosen else "the calibrated accelerometer",
-            "convention": "u_ref = R u_triad (method.md M9): R turns a triad's calibrated "
+            "convention": "u_ref = R u_triad (method.md M12): R turns a triad's calibrated "
                           "vector into the reference triad's frame; std in degrees about the "
                           "reference's axes, total = sqrt(trace of the covariance)",
             "triads": out}

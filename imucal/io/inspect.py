@@ -49,7 +49,7 @@ class FileLines:
     streams: tuple[StreamLine, ...]
     notes: tuple[str, ...]
     error: str | None = None
-    # Several accelerometers: each as logged against the first (method.md §10), one line each.
+    # Several accelerometers: each as logged against the first (method.md §11), one line each.
     imus: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
@@ -99,7 +99,7 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
 
 def _imus(streams: tuple[Stream, ...], picked: set[int]) -> tuple[str, ...]:
     """Two or more accelerometers: each as logged against the one calibrate takes (method.md
-    §10); nothing for one."""
+    §11); nothing for one."""
     from imucal.stages.triads import logged_imus, logged_lines
 
     accs = sorted((s for s in streams if s.kind == "acc" and s.samples),

@@ -1,5 +1,5 @@
-"""Temperature (method.md §11): a triad's bias as a polynomial in its temperature (M13), fitted
-to the still blocks after the constant-bias calibration (M14), its order (0-3) chosen by
+"""Temperature (method.md §12): a triad's bias as a polynomial in its temperature (M16), fitted
+to the still blocks after the constant-bias calibration (M17), its order (0-3) chosen by
 cross-validation over the blocks, and never extrapolated beyond the temperatures seen.
 
 The rest of the model (misalignment, scale) stays as §3 and §4 fitted it: PX4 assumes the same,
@@ -42,7 +42,7 @@ def block_temperatures(t_temp: np.ndarray, temp: np.ndarray,
 
 @dataclass(frozen=True)
 class BiasPolynomial:
-    """M13 for one sensor: ``b(T) = b_0 + sum_j c_j (T - T_0)^j`` (``coefs[j]``, raw unit per
+    """M16 for one sensor: ``b(T) = b_0 + sum_j c_j (T - T_0)^j`` (``coefs[j]``, raw unit per
     deg C^j, ``coefs[0]`` the constant's offset from ``b_0``), held at its end values outside
     ``span``."""
 
@@ -55,24 +55,24 @@ class BiasPolynomial:
     cv_rms: np.ndarray  # (4,) held-out RMS of the bias per order 0-3 (NaN: not tried), raw
     blocks: int
     notes: tuple[str, ...] = ()
-    # The accelerometer's M2 with the small correction M14 fitted beside the polynomial (its
+    # The accelerometer's M2 with the small correction M17 fitted beside the polynomial (its
     # misalignments and scales; its bias b0): the model b(T) belongs to. None: the fit's own.
     model: SensorModel | None = None
     # (9, 9) the covariance of that model's parameters from the same fit (its residuals'
-    # scatter): what the rotation between triads propagates (M10) once temperature is modelled.
+    # scatter): what the rotation between triads propagates (M13) once temperature is modelled.
     cov: np.ndarray | None = None
     # Each block's residual after the fit (the gyroscope's (n, 3) in its raw unit, the
     # accelerometer's (n,) norm residual in mg) and which of the run's blocks they are.
     residuals: np.ndarray | None = None
     used: np.ndarray | None = None  # (n,) block indices
     temps: np.ndarray | None = None  # (n,) those blocks' temperatures, deg C (the data points)
-    hysteresis: str | None = None  # heating against cooling, said (method.md §11)
+    hysteresis: str | None = None  # heating against cooling, said (method.md §12)
     # (3,) the scales' relative change per deg C about T_0 where the data determine it
     # (cross-validated beside the bias's order); None: the scales held constant.
     scale_slope: np.ndarray | None = None
 
     def calibrated(self, raw: np.ndarray, temp: np.ndarray) -> np.ndarray:
-        """(N, 3) ``T K (raw - b(T))`` (M2 with M13's bias) of raw readings at temperatures
+        """(N, 3) ``T K (raw - b(T))`` (M2 with M16's bias) of raw readings at temperatures
         ``temp``; needs :attr:`model`."""
         m = self.model
         out = (np.asarray(raw, float) - self.bias_at(temp)) * m.K[None, :]
@@ -90,7 +90,7 @@ class BiasPolynomial:
 
     def bias_at(self, temp: np.ndarray) -> np.ndarray:
         """(N, 3) the bias at temperatures ``temp``, constant outside the span (never
-        extrapolated, method.md §11)."""
+        extrapolated, method.md §12)."""
         x = np.clip(np.asarray(temp, float).reshape(-1), *self.span) - self.t0
         return self.b0 + sum(self.coefs[j][None, :] * x[:, None] ** j
                              for j in range(len(self.coefs)))
@@ -112,7 +112,7 @@ def _design(x: np.ndarray, order: int) -> np.ndarray:
 
 def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
                         sensor: str) -> BiasPolynomial | None:
-    """M13 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
+    """M16 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
     at block temperatures ``temps`` (B,): the order by ``FOLDS``-fold cross-validation over
     the blocks (sorted by temperature, every ``FOLDS``-th block in one fold, so each fold spans
     the range and none is extrapolated); None without two blocks of known temperature."""
@@ -179,8 +179,8 @@ def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> 
 def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                               models: list[SensorModel], g: float,
                               legs: np.ndarray | None = None) -> BiasPolynomial | None:
-    """M13 for an accelerometer. A still block says only how far its calibrated norm is from
-    ``|g|`` (M14 seen along gravity: a bias across gravity turns the vector and keeps its
+    """M16 for an accelerometer. A still block says only how far its calibrated norm is from
+    ``|g|`` (M17 seen along gravity: a bias across gravity turns the vector and keeps its
     norm), so the polynomial is fitted to the blocks' norm residuals, linearised at the §3
     fit, together with a small correction of all of M2 (a drift the constant fit absorbed into
     a scale is given back): ``|u_k| - |g| + J_k dtheta + sum_j a_k (T_k - T_0)^j . c_j = 0``,
@@ -210,7 +210,7 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
     fold = np.empty(b, int)
     fold[np.argsort(temps, kind="stable")] = np.arange(b) % FOLDS
     # Candidates (order, scale slope), fewest unknowns first: the bias of order 0-3, each with
-    # and without a linear slope of the scales (where the data determine one, method.md §11).
+    # and without a linear slope of the scales (where the data determine one, method.md §12).
     candidates = sorted(((p, sl) for p in ORDERS for sl in (False, True)),
                         key=lambda c: (3 * c[0] + 3 * c[1], c[0]))
     cv_of: dict[tuple[int, bool], float] = {}
@@ -294,7 +294,7 @@ def block_legs(t_temp: np.ndarray, temp: np.ndarray, block_times: np.ndarray) ->
 
 def hysteresis_text(sensor: str, diff: np.ndarray, cov: np.ndarray, n_up: int, n_down: int,
                     unit: str) -> str:
-    """Heating against cooling said (method.md §11): the difference (a vector, ``cov`` its
+    """Heating against cooling said (method.md §12): the difference (a vector, ``cov`` its
     covariance), significant beyond 3 times its standard error ``sqrt(trace cov)``."""
     size, size_se = float(np.linalg.norm(diff)), float(np.sqrt(np.trace(cov)))
     head = (f"{sensor}: heating ({n_up} still poses) and cooling ({n_down}) legs differ by "
@@ -308,7 +308,7 @@ def hysteresis(fit: BiasPolynomial, legs: np.ndarray, unit: str,
                scale: float = 1.0) -> str | None:
     """A gyroscope's heating against cooling: the mean residual of its fit on each leg, their
     difference (``scale`` turns it into ``unit``); None without ``MIN_LEG_BLOCKS`` on each
-    leg. (The accelerometer's is fitted inside M14: :func:`fit_accel_bias_polynomial`.)"""
+    leg. (The accelerometer's is fitted inside M17: :func:`fit_accel_bias_polynomial`.)"""
     if fit.residuals is None or fit.used is None or fit.residuals.ndim != 2:
         return fit.hysteresis
     leg = legs[fit.used]

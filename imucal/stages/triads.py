@@ -1,5 +1,5 @@
-"""Several triads in one device (method.md §10): the rotation of each other accelerometer triad to
-the reference's frame from the still blocks both saw (M9, M10), its standard error, and how well
+"""Several triads in one device (method.md §11): the rotation of each other accelerometer triad to
+the reference's frame from the still blocks both saw (M12, M13), its standard error, and how well
 the triads agree once calibrated (held-out blocks, in mg); for a flight log that calibrates
 nothing, how far the IMUs disagree as logged.
 
@@ -22,7 +22,7 @@ from imucal.numerics.windows import samples_within
 from imucal.session import STANDARD_GRAVITY
 from imucal.streams import Stream
 
-# Fewest samples of a triad inside a reference block for its mean to count (method.md §10).
+# Fewest samples of a triad inside a reference block for its mean to count (method.md §11).
 MIN_SAMPLES = 2
 # PX4 refuses to arm when two accelerometers differ by more than this (COM_ARM_IMU_ACC).
 PX4_ARM_ACC_M_S2 = 0.7
@@ -41,7 +41,7 @@ def interval_means(t: np.ndarray, rows: Callable[[int, int], np.ndarray],
                    intervals: np.ndarray, g: float,
                    clipped: np.ndarray | None = None) -> BlockMeans:
     """The mean and the variance of the mean of ``rows(a, b)`` (calibrated samples) inside each
-    closed time interval (method.md §10: the other triad averaged in the reference's blocks,
+    closed time interval (method.md §11: the other triad averaged in the reference's blocks,
     whatever its clock). A block with fewer than :data:`MIN_SAMPLES` samples, or holding a
     sample of ``clipped`` (a (N,) mask of saturated samples), gets NaN."""
     idx = samples_within(t, intervals)
@@ -64,7 +64,7 @@ def interval_means(t: np.ndarray, rows: Callable[[int, int], np.ndarray],
 
 def kabsch(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
     """The rotation R minimising ``sum w_k |u_k - R v_k|^2`` (Wahba's problem by the SVD,
-    its determinant forced to +1): the start of M10."""
+    its determinant forced to +1): the start of M13."""
     h = (u * w[:, None]).T @ v  # sum w_k u_k v_k'
     a, _, bt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(a @ bt)) or 1.0
@@ -85,7 +85,7 @@ def _exp(delta: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class RotationFit:
-    """M10 solved: the rotation taking the other triad's frame to the reference's, its
+    """M13 solved: the rotation taking the other triad's frame to the reference's, its
     covariance (rad^2, in the reference's frame) and the fit's chi-square."""
 
     R: np.ndarray  # (3, 3)
@@ -109,8 +109,8 @@ class RotationFit:
 def fit_rotation(u: np.ndarray, v: np.ndarray, s2: np.ndarray,
                  start: np.ndarray | None = None, iterations: int = 8,
                  empirical: bool = False) -> RotationFit:
-    """``u_k = R v_k + e_k`` (M9) by Kabsch then Gauss–Newton on ``R = R_0 exp([delta]x)``
-    (M10); the covariance ``c (J' W J)^-1`` from the Jacobian, ``c`` the reduced chi-square
+    """``u_k = R v_k + e_k`` (M12) by Kabsch then Gauss–Newton on ``R = R_0 exp([delta]x)``
+    (M13); the covariance ``c (J' W J)^-1`` from the Jacobian, ``c`` the reduced chi-square
     where it exceeds 1 (the triads' own calibration errors then count in it); ``empirical``:
     ``c`` the reduced chi-square whatever its size (``s2`` then only weighs the pairs)."""
     w = 1.0 / s2
@@ -142,7 +142,7 @@ def angle_deg(r1: np.ndarray, r2: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class TriadAgreement:
-    """Another accelerometer triad against the reference (method.md §10)."""
+    """Another accelerometer triad against the reference (method.md §11)."""
 
     rotation: RotationFit
     blocks: int  # shared still blocks used
@@ -171,7 +171,7 @@ MIN_SHARED_BLOCKS = 4
 
 @dataclass(frozen=True)
 class TriadModels:
-    """One triad's accelerometer fits as the rotation's error sees them (method.md §10): its raw
+    """One triad's accelerometer fits as the rotation's error sees them (method.md §11): its raw
     means inside the reference's blocks, each block's segment, and each segment's M2
     parameters (``ACC_PARAM_NAMES`` order, raw units) with their covariance."""
 
@@ -194,7 +194,7 @@ class TriadModels:
 def propagated_cov(models: TriadModels, which: int, u: np.ndarray, v: np.ndarray,
                    s2: np.ndarray, used: np.ndarray, R: np.ndarray) -> np.ndarray:
     """(3, 3) the rotation's covariance (rad^2, reference frame) from one triad's own M2
-    errors: each parameter moved a little, the rotation refitted (M10), the change's Jacobian
+    errors: each parameter moved a little, the rotation refitted (M13), the change's Jacobian
     ``J`` and ``J C J'`` over the segments. ``which`` 0: the triad is the reference (``u``),
     1: the other (``v``)."""
     base = models.means()[used]
@@ -223,7 +223,7 @@ def propagated_cov(models: TriadModels, which: int, u: np.ndarray, v: np.ndarray
 def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
                     other_raw: np.ndarray, ref_models: TriadModels | None = None,
                     other_models: TriadModels | None = None) -> TriadAgreement | None:
-    """The rotation of ``other`` to ``ref`` (M9, M10) from the blocks both saw, and their
+    """The rotation of ``other`` to ``ref`` (M12, M13) from the blocks both saw, and their
     held-out agreement; ``ref_raw``/``other_raw`` (B, 3) the raw means in each triad's nominal
     frame (|g|-normalised) for the figure before calibration. Given each triad's fits
     (``*_models``), the rotation's covariance holds their errors too (M2's frame moves with
@@ -254,7 +254,7 @@ def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
     return TriadAgreement(rotation=fit, blocks=n, held_out_mg=held, before_mg=before, used=used)
 
 
-# --- two clocks: the offset from the motion (method.md §10) -------------------------------------
+# --- two clocks: the offset from the motion (method.md §11) -------------------------------------
 
 ENVELOPE_STEP_S = 0.01  # the grid the two motions are compared on
 ENVELOPE_SMOOTH_S = 0.1
@@ -319,13 +319,13 @@ def clock_offset(t_ref: np.ndarray, x_ref: np.ndarray, t_other: np.ndarray,
     return shift * ENVELOPE_STEP_S, float(c[k] / norm) if norm > 0 else 0.0
 
 
-# --- a triad calibrated against the reference (method.md §10, M12) ------------------------------
+# --- a triad calibrated against the reference (method.md §11, M15) ------------------------------
 
 
 @dataclass(frozen=True)
 class AgainstReference:
     """Another triad's M2 and rotation fitted to the reference's calibrated gravity vectors
-    (M12): three equations per still block where its own fit (M3) has one, so a noisy
+    (M15): three equations per still block where its own fit (M3) has one, so a noisy
     (high-range) triad is pinned to the precise one; the reference's own errors pass into it."""
 
     model: SensorModel  # M2 in the triad's raw unit, output in units of |g|
@@ -351,7 +351,7 @@ def _split_affine(A: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, SensorModel
 
 def fit_against_reference(u: np.ndarray, m: np.ndarray, s2: np.ndarray
                           ) -> AgainstReference | None:
-    """M12 by weighted linear least squares on ``u_k = A m_k + c`` (``u`` (B, 3) the
+    """M15 by weighted linear least squares on ``u_k = A m_k + c`` (``u`` (B, 3) the
     reference's calibrated means over |g|, ``m`` the triad's raw means, ``s2`` each block's
     variance), then split into R and M2; the covariance of K and b from the least squares
     (scaled by the residuals' reduced chi-square where above 1) through the split's Jacobian.
@@ -392,7 +392,7 @@ def fit_against_reference(u: np.ndarray, m: np.ndarray, s2: np.ndarray
                             blocks=b)
 
 
-# --- gyroscopes: the rotation from the turns (method.md §10, M11) --------------------------------
+# --- gyroscopes: the rotation from the turns (method.md §11, M14) --------------------------------
 
 # Turns smaller than this say little about an axis (their rotation vector is mostly noise).
 MIN_TURN_DEG = 10.0
@@ -400,7 +400,7 @@ MIN_TURN_DEG = 10.0
 
 @dataclass(frozen=True)
 class GyroAgreement:
-    """Another gyroscope against the reference's, from the turns both measured (M11)."""
+    """Another gyroscope against the reference's, from the turns both measured (M14)."""
 
     rotation: RotationFit
     turns: int  # turns used
@@ -435,7 +435,7 @@ def gyro_model_from(p: np.ndarray, b: np.ndarray) -> SensorModel:
 
 @dataclass(frozen=True)
 class GyroTurns:
-    """One triad's gyroscope as M11 sees it: ``turns(s, p)`` the (K, 3) turn rotation vectors
+    """One triad's gyroscope as M14 sees it: ``turns(s, p)`` the (K, 3) turn rotation vectors
     with segment ``s``'s 9 parameters replaced by ``p`` (None, None: the fit's own), and each
     segment's parameters and their standard errors (raw units)."""
 
@@ -447,7 +447,7 @@ class GyroTurns:
 def _propagated_turn_cov(g: GyroTurns, which: int, u: np.ndarray, v: np.ndarray,
                          ok: np.ndarray, R: np.ndarray) -> np.ndarray:
     """(3, 3) the rotation's covariance from one gyroscope's own M4 errors: each parameter
-    moved a little, the turns integrated again and M11 refitted (their standard errors only:
+    moved a little, the turns integrated again and M14 refitted (their standard errors only:
     the fit reports no correlations)."""
     base = g.turns(None, None)[ok]
     out = np.zeros((3, 3))
@@ -471,7 +471,7 @@ def _propagated_turn_cov(g: GyroTurns, which: int, u: np.ndarray, v: np.ndarray,
 
 def gyro_agreement(ref: GyroTurns, other: GyroTurns,
                    accel_R: np.ndarray | None = None) -> GyroAgreement | None:
-    """``r_ref,k = R r_other,k`` (M11) over the turns of at least :data:`MIN_TURN_DEG` in both
+    """``r_ref,k = R r_other,k`` (M14) over the turns of at least :data:`MIN_TURN_DEG` in both
     by Kabsch and Gauss–Newton (:func:`fit_rotation`); the covariance from the residuals'
     scatter and each gyroscope's own M4 errors. None with fewer than
     :data:`MIN_SHARED_BLOCKS` turns in two directions."""
@@ -496,7 +496,7 @@ def gyro_agreement(ref: GyroTurns, other: GyroTurns,
 @dataclass(frozen=True)
 class LoggedImu:
     """One accelerometer of a log as logged: its mean, temperature, and difference to the
-    reference's over the time both cover (method.md §10, a flight log)."""
+    reference's over the time both cover (method.md §11, a flight log)."""
 
     name: str
     samples: int
@@ -509,7 +509,7 @@ class LoggedImu:
 
 
 def logged_imus(accs: Sequence[Stream], temps: Sequence[Stream]) -> list[LoggedImu]:
-    """Each accelerometer stream against the first (the reference, method.md §10 on a flight
+    """Each accelerometer stream against the first (the reference, method.md §11 on a flight
     log): the means over the time both cover and their difference, and each one's mean
     temperature (a temperature stream of the same IMU, or of the same instance). A triad in g
     against one in m/s² is converted to the reference's unit."""

@@ -1,5 +1,5 @@
 """imucal calibrate --all-imus / --triad on a table with a second accelerometer (a2x, a2y, a2z):
-the triads section written only when asked for (method.md §10)."""
+the triads section written only when asked for (method.md §11)."""
 
 from __future__ import annotations
 

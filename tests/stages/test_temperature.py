@@ -1,4 +1,4 @@
-"""Temperature (method.md §11): each sensor's bias a polynomial in temperature (M13, M14), its
+"""Temperature (method.md §12): each sensor's bias a polynomial in temperature (M16, M17), its
 order chosen by cross-validation, never extrapolated; on synthetic ramps with their truth."""
 
 from __future__ import annotations

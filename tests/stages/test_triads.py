@@ -1,5 +1,5 @@
-"""Several triads in one device (method.md §10): the rotation of a second accelerometer to the
-reference from the shared still blocks (M9, M10), its standard error, and the agreement after
+"""Several triads in one device (method.md §11): the rotation of a second accelerometer to the
+reference from the shared still blocks (M12, M13), its standard error, and the agreement after
 calibration, on synthetic sessions with their truth."""
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def test_the_triads_agree_within_1_mg_on_held_out_blocks_after_calibration(runs)
 
 
 def test_the_gyroscopes_rotation_from_the_turns_is_the_imus_and_honest(runs):
-    """M11: the second IMU's gyroscope turned as its accelerometer is (the truth's R), within
+    """M14: the second IMU's gyroscope turned as its accelerometer is (the truth's R), within
     0.05 deg, its 1-sigma within 1.5x of the error over seeds, and near the accelerometers'."""
     err, sd = [], []
     for result, truth in runs:
@@ -191,7 +191,7 @@ def test_three_imus_named_as_a_log_names_them_in_other_units():
 
 
 def test_a_noisy_triad_fitted_to_the_reference_s_gravity_vectors():
-    """M12: a triad with 10 times the reference's noise (a high-range part), fitted to the
+    """M15: a triad with 10 times the reference's noise (a high-range part), fitted to the
     reference's calibrated vectors, has its scales and bias closer to the truth than its own
     norm-only fit, and standard errors that say so honestly (errors over 12 seeds within 1.5x
     of them)."""

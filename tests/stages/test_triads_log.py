@@ -1,4 +1,4 @@
-"""The shared PX4 flight log (three IMUs at different temperatures, method.md §10): every IMU
+"""The shared PX4 flight log (three IMUs at different temperatures, method.md §11): every IMU
 read and their disagreement said, and the flight not calibrated (it holds no still poses)."""
 
 from __future__ import annotations
