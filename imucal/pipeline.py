@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 
 import numpy as np
 
 from imucal.errors import ImucalError
+from imucal.models import SensorModel
 from imucal.numerics.directions import distinct_orientations
-from imucal.result import Result, Segment
+from imucal.result import Result, Segment, Triad
 from imucal.session import STANDARD_GRAVITY, Session, validate
 from imucal.settings import Settings
 from imucal.stages.accel import (
@@ -39,7 +41,29 @@ from imucal.stages.sanity import (
     unwrap_session,
 )
 from imucal.stages.saturation import blocks_meeting, saturated_mask, saturated_runs
+from imucal.stages.temperature import (
+    block_legs,
+    block_temperatures,
+    fit_accel_bias_polynomial,
+    fit_bias_polynomial,
+    hysteresis,
+)
+from imucal.stages.triads import (
+    MIN_SHARED_BLOCKS,
+    MIN_TURN_DEG,
+    BlockMeans,
+    GyroTurns,
+    TriadModels,
+    clock_offset,
+    fit_against_reference,
+    gyro_agreement,
+    gyro_model_from,
+    interval_means,
+    triad_agreement,
+    turn_rotvecs,
+)
 from imucal.stages.verdict import SegmentFigures, judge
+from imucal.streams import Stream
 from imucal.warning import RunWarning
 
 
@@ -332,3 +356,326 @@ def _check_blocks(session: Session, det: Detection, settings: Settings, g_in: fl
 
 
 __all__ = ["Result", "Segment", "Settings", "calibrate", "select_points", "make_nominal"]
+
+
+# --- several triads in one device (method.md §11) -----------------------------------------------
+
+
+def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
+                     temperature: bool = False) -> Result:
+    """The run ``result`` with the session's other accelerometer triads (``Session.others``):
+    each calibrated with the whole method on its own samples (with its own IMU's gyroscope where
+    the session has one), and its rotation to ``result``'s triad, the reference, estimated from
+    the reference's still blocks (M12, M13) with the triads' held-out agreement. ``which`` is
+    ``"all"`` or the names of the triads to take (a stream's instance, its IMU, or its name). A
+    triad that cannot be calibrated is said in its ``said``, never stops the run. With
+    ``temperature``, each triad's bias in temperature too (:func:`calibrate_temperature`, on
+    its own IMU's temperature stream)."""
+    session, settings = result.session, result.settings
+    accs = [s for s in session.others if s.kind == "acc"]
+    if which != "all":
+        wanted = [w.lower() for w in which]
+        accs_named = [s for s in accs if {s.instance.lower(), (s.imu or "").lower(),
+                                          s.name.lower()} & set(wanted)]
+        missing = [w for w in wanted if not any(
+            w in {s.instance.lower(), (s.imu or "").lower(), s.name.lower()} for s in accs)]
+        if missing:
+            have = ", ".join(s.instance for s in accs) or "none"
+            raise ImucalError(f"no other accelerometer triad {missing[0]!r}; the session has: "
+                              f"{have}", source=session.source, field="triads")
+        accs = accs_named
+    g_ref = result.calibration.g
+    ref = interval_means(session.t_acc, functools.partial(result.calibration.rows, session, "acc"),
+                         result.block_times, g_ref)
+    raw = interval_means(session.t_acc, lambda a, b: session.acc[a:b], result.block_times, 1.0)
+    ref = _with_temperature(result, ref, raw.means, result.block_times)
+    ref_raw = result.whole.nominal.to_nominal(raw.means)
+    ref_models = _triad_models(result, raw.means, result.block_times)
+    ref_turns = _turns(result, session, result.block_times)
+    triads = [_one_triad(session, settings, s, ref, ref_raw, ref_models, result.block_times,
+                         temperature, ref_turns) for s in accs]
+    return dataclasses.replace(result, triads=tuple(triads))
+
+
+def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
+                  ) -> TriadModels:
+    """A run's accelerometer fits for the rotation's error (M13): each of the reference's
+    blocks (``block_times``) in the segment whose span holds its middle, else the nearest."""
+    mid = block_times.mean(axis=1)
+    spans = np.array([[s.t_start, s.t_end] for s in result.segments])
+    outside = np.maximum(spans[None, :, 0] - mid[:, None], mid[:, None] - spans[None, :, 1])
+    covs = tuple(s.acc.cov for s in result.segments)
+    fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
+    if fit is not None and fit.cov is not None and len(covs) == 1:
+        # The constant fit's covariance holds the drift it could not model; M17's does not.
+        covs = (fit.cov,)
+    return TriadModels(raw_means=raw_means, segment_of_block=np.argmin(outside, axis=1),
+                       params=tuple(s.acc.params for s in result.segments),
+                       covs=covs, g=result.calibration.g)
+
+
+def _one_triad(session: Session, settings: Settings, acc: Stream, ref: BlockMeans,
+               ref_raw: np.ndarray, ref_models: TriadModels, block_times: np.ndarray,
+               temperature: bool, ref_turns: GyroTurns | None) -> Triad:
+    said: list[str] = []
+    gyro = _gyro_partner(session, acc)
+    sub = _triad_session(session, acc, gyro, said)
+    sub, offset = _aligned(session, sub, acc.name, said)
+    try:
+        res = calibrate(sub, settings)
+    except ImucalError as e:
+        said.append(f"{acc.name} not calibrated: {e.problem}")
+        return Triad(acc.name, gyro.name if gyro else None, None, None, tuple(said),
+                     clock_offset_s=offset)
+    if temperature:
+        res = calibrate_temperature(res)
+    if res.verdict is not None and not res.verdict.usable:
+        said.append(f"{acc.name}: its own calibration is not usable ({res.verdict.reason})")
+    other = interval_means(sub.t_acc, functools.partial(res.calibration.rows, sub, "acc"),
+                           block_times, res.calibration.g, clipped=saturated_mask(sub.acc))
+    raw = interval_means(sub.t_acc, lambda a, b: sub.acc[a:b], block_times, 1.0)
+    other = _with_temperature(res, other, raw.means, block_times)
+    other_raw = res.whole.nominal.to_nominal(raw.means)
+    agreement = triad_agreement(ref, other, ref_raw, other_raw, ref_models,
+                                _triad_models(res, raw.means, block_times))
+    if agreement is None:
+        said.append(f"{acc.name}: fewer than {MIN_SHARED_BLOCKS} of the reference's still blocks "
+                    "in two directions hold its samples; its rotation to the reference is not "
+                    "estimated")
+    other_turns = _turns(res, sub, block_times)
+    gyro_rot = None
+    if gyro is not None:
+        why = ("the reference has no calibrated gyroscope" if ref_turns is None
+               else "its own gyroscope fit is missing" if other_turns is None else None)
+        if why is None:
+            gyro_rot = gyro_agreement(ref_turns, other_turns,
+                                      None if agreement is None else agreement.rotation.R)
+            if gyro_rot is None:
+                why = (f"fewer than {MIN_SHARED_BLOCKS} turns of {MIN_TURN_DEG:g} deg or more "
+                       "in two directions")
+        if why is not None:
+            said.append(f"{gyro.name}: calibrated with {acc.name}, in its own frame: {why}, so "
+                        "its rotation to the reference's gyroscope is not estimated")
+    against = None
+    if agreement is not None:
+        used = agreement.used
+        fit = fit_against_reference(ref.means[used], raw.means[used],
+                                    ref.var[used] + other.var[used])
+        if fit is not None:  # in units of |g|: to the triad's own calibrated unit
+            g = res.calibration.g
+            against = dataclasses.replace(fit, model=SensorModel(
+                T=fit.model.T, K=fit.model.K * g, b=fit.model.b), std_K=fit.std_K * g)
+    return Triad(acc.name, gyro.name if gyro else None, res, agreement, tuple(said), gyro_rot,
+                 against, offset)
+
+
+# A clock offset below this many of the slower triad's sample steps (or 5 ms) is left alone.
+OFFSET_STEPS = 2.0
+MIN_OFFSET_CORRELATION = 0.5
+
+
+def _aligned(session: Session, sub: Session, name: str,
+             said: list[str]) -> tuple[Session, float | None]:
+    """The triad's session on the reference's clock (method.md §11): the offset of its clock
+    from the motion both saw (:func:`clock_offset`), its times moved by it where it exceeds a
+    couple of sample steps, and said; None where the clocks could not be compared."""
+    offset, corr = clock_offset(session.t_acc, session.acc, sub.t_acc, sub.acc)
+    if not np.isfinite(offset) or corr < MIN_OFFSET_CORRELATION:
+        if np.isfinite(offset):
+            said.append(f"{name}: its clock could not be compared with the reference's (their "
+                        f"motions correlate at {corr:.2f} at best): taken as the same clock")
+        return sub, None
+    limit = max(OFFSET_STEPS * max(session.acc_step, sub.acc_step), 0.005)
+    if abs(offset) <= limit:
+        return sub, offset
+    said.append(f"{name}: its clock reads {abs(offset):.3f} s "
+                f"{'ahead of' if offset > 0 else 'behind'} the reference's (from the motion "
+                f"both saw, correlation {corr:.2f}): its times moved by {-offset:+.3f} s")
+    moved = {"t_acc": sub.t_acc - offset}
+    if sub.has_gyro:
+        moved["t_gyro"] = sub.t_gyro - offset
+    return dataclasses.replace(sub, **moved), offset
+
+
+def _turns(result: Result, session: Session, block_times: np.ndarray) -> GyroTurns | None:
+    """The turns between the reference's still blocks as ``result``'s calibrated gyroscope
+    measures them (each turn with its segment's model; M14); None without a calibrated
+    gyroscope or with fewer than two blocks."""
+    segs = result.segments
+    if not session.has_gyro or any(s.gyro is None for s in segs) or len(block_times) < 2:
+        return None
+    mid = (block_times[:-1, 1] + block_times[1:, 0]) / 2
+    spans = np.array([[s.t_start, s.t_end] for s in segs])
+    outside = np.maximum(spans[None, :, 0] - mid[:, None], mid[:, None] - spans[None, :, 1])
+    which = np.argmin(outside, axis=1)
+    params = tuple(s.gyro.params for s in segs)
+    # std of the scales is relative to the nominal scale (gyro_model_of): in raw units here.
+    stds = tuple(np.r_[s.gyro.std[:6], s.gyro.std[6:9] * s.gyro.nominal_scale] for s in segs)
+
+    def turns(seg: int | None, p: np.ndarray | None) -> np.ndarray:
+        models = [segs[i].gyro.model if i != seg else gyro_model_from(p, segs[i].gyro.model.b)
+                  for i in range(len(segs))]
+        M = np.array([models[i].matrix for i in which])
+        b = np.array([models[i].b for i in which])
+        return turn_rotvecs(session.gyro, session.t_gyro, block_times, M, b)
+
+    return GyroTurns(turns=turns, params=params, stds=stds)
+
+
+def _with_temperature(result: Result, means: BlockMeans, raw_means: np.ndarray,
+                      block_times: np.ndarray) -> BlockMeans:
+    """The calibrated block means with the bias at each block's temperature (M16) where the
+    run fitted one for its accelerometer: a triad compared at the temperature it was at."""
+    fit = next((f for f in result.temperature if f.sensor == "accelerometer"), None)
+    stream = _temp_stream(result.session)
+    if fit is None or fit.model is None or stream is None:
+        return means
+    temps = block_temperatures(stream.t, stream.values, block_times)
+    ok = np.isfinite(temps) & np.isfinite(means.var)
+    out = means.means.copy()
+    out[ok] = fit.calibrated(raw_means[ok], temps[ok]) / result.calibration.g
+    return dataclasses.replace(means, means=out)
+
+
+def _temp_stream(session: Session) -> Stream | None:
+    """The session's temperature stream: the one of the calibrated accelerometer's instance
+    where there are several, else the first; None without one."""
+    temps = [s for s in session.others if s.kind == "temp" and s.samples >= 2]
+    if not temps:
+        return None
+    named = session.chosen[0].split(" ")[1] if session.chosen else None
+    return next((s for s in temps if s.instance == named), temps[0])
+
+
+def _gyro_partner(session: Session, acc: Stream) -> Stream | None:
+    """The gyroscope of the accelerometer's IMU (a log's), or a table's g2x… beside a2x…."""
+    gyros = [s for s in session.others if s.kind == "gyro"]
+    if acc.imu is not None:
+        same = [g for g in gyros if g.imu == acc.imu]
+        if same:
+            return same[0]
+    if acc.instance[:1] == "a" and acc.instance[1:].isdigit():
+        same = [g for g in gyros if g.instance == "g" + acc.instance[1:]]
+        if same:
+            return same[0]
+    return None
+
+
+def _triad_session(session: Session, acc: Stream, gyro: Stream | None,
+                   said: list[str]) -> Session:
+    """A Session of one triad's streams, calibrated like any other (units as the streams state
+    them; one it does not state is that of the reference triad, and said)."""
+    acc_unit = acc.unit
+    if acc_unit is None:
+        acc_unit = session.acc_unit
+        said.append(f"{acc.name}: unit not stated, taken as the reference's ({acc_unit})")
+    g_values, g_unit = None, None
+    if gyro is not None:
+        g_values, g_unit = gyro.values, gyro.unit
+        if g_unit is None:
+            g_unit = session.gyro_unit or "rad/s"
+            said.append(f"{gyro.name}: unit not stated, taken as the reference's ({g_unit})")
+        if g_unit == "deg/s":
+            g_values, g_unit = np.radians(g_values), "rad/s"
+    temps = tuple(s for s in session.others if s.kind == "temp" and (
+        s.instance in (acc.instance, gyro.instance if gyro else None)
+        or (s.imu is not None and s.imu in (acc.imu, gyro.imu if gyro else None))))
+    device = [s for s in session.others if s.kind == "temp"]
+    if not temps and len(device) == 1 and device[0].imu is None:
+        temps = tuple(device)  # one thermometer of no IMU (a table's temp): the device's
+    return Session(acc=acc.values, t_acc=acc.t, gyro=g_values, others=temps,
+                   t_gyro=None if gyro is None else gyro.t, acc_unit=acc_unit,
+                   gyro_unit=g_unit if gyro is not None else "rad/s",
+                   source=f"{session.source} [{acc.name}]", sha256=session.sha256,
+                   notes=acc.notes + (gyro.notes if gyro is not None else ()),
+                   chosen=tuple(f"{s.name} ({s.origin})" for s in (acc, gyro) if s is not None))
+
+
+# --- temperature (method.md §12) -----------------------------------------------------------------
+
+
+def calibrate_temperature(result: Result) -> Result:
+    """The run ``result`` with each sensor's bias a polynomial in temperature (M16, M17), from
+    the session's temperature stream (the one of the calibrated accelerometer's instance where
+    there are several), at each still block. A run the grouping (§2) split into segments is
+    calibrated again as one segment first, and said: with a temperature stream a bias that
+    drifts is the temperature's to explain. Without a temperature stream, or with too few
+    blocks, nothing is fitted (``Result.temperature`` stays empty). Run it before
+    :func:`calibrate_triads`, which fits each other triad's own with ``temperature=True``."""
+    if result.triads:
+        raise ValueError("calibrate_temperature comes before calibrate_triads (which takes "
+                         "temperature=True for the other triads)")
+    session = result.session
+    temp = _temp_stream(session)
+    if temp is None:
+        return result
+    said: tuple[str, ...] = ()
+    if len(result.segments) > 1:
+        said = (f"the grouping split the recording into {len(result.segments)} segments where "
+                "the bias moved; with a temperature stream that drift is the temperature's, so "
+                "it was calibrated again as one segment",)
+        result = calibrate(session, dataclasses.replace(result.settings, single_segment=True))
+    block_t = block_temperatures(temp.t, temp.values, result.block_times)
+    det, fits = result.detection, []
+    models = [seg.acc.model for seg in result.segments for _ in range(seg.n_blocks)]
+    legs = block_legs(temp.t, temp.values, result.block_times)
+    fits.append(fit_accel_bias_polynomial(block_t, det.means, models, result.calibration.g,
+                                          legs))
+    gyro_fit = result.segments[0].gyro
+    if session.has_gyro and gyro_fit is not None:
+        means = interval_means(session.t_gyro, lambda a, b: session.gyro[a:b],
+                               result.block_times, 1.0).means
+        fits.append(fit_bias_polynomial(block_t, means - gyro_fit.model.b, gyro_fit.model.b,
+                                        "gyroscope"))
+    unit = ("deg/s", 180 / np.pi) if session.gyro_unit == "rad/s" else ("counts", 1.0)
+    out = []
+    for f in fits:
+        if f is None:
+            continue
+        if f.sensor == "gyroscope":  # the accelerometer's was fitted inside M17
+            hyst = hysteresis(f, legs, *unit)
+            f = dataclasses.replace(f, notes=f.notes + ((hyst,) if hyst else ()),
+                                    hysteresis=hyst)
+        out.append(dataclasses.replace(f, notes=said + f.notes))
+    return dataclasses.replace(result, temperature=tuple(out))
+
+
+def calibrate_same_device(results: Sequence[Result]) -> Result:
+    """The first run with each sensor's bias in temperature (M16, M17) fitted to the still
+    blocks of every run, sessions of one device recorded at different temperatures
+    (``--same-device``): the blocks pooled at their own temperatures, linearised at the first
+    run's M2. Each session must hold a temperature stream, and all the same raw units."""
+    first = results[0]
+    if first.triads:
+        raise ValueError("calibrate_same_device comes before calibrate_triads")
+    temps, means, gyro, models, legs = [], [], [], [], []
+    acc_model0 = first.segments[0].acc.model
+    gyro_fit = first.segments[0].gyro
+    for r in results:
+        s = r.session
+        stream = _temp_stream(s)
+        if stream is None:
+            raise ImucalError("--same-device: the session holds no temperature stream (a temp "
+                              "column, or a log's)", source=s.source, field="temperature")
+        if s.acc_unit != first.session.acc_unit or s.gyro_unit != first.session.gyro_unit:
+            raise ImucalError(f"--same-device: units {s.acc_unit}, {s.gyro_unit} differ from "
+                              f"the first session's ({first.session.acc_unit}, "
+                              f"{first.session.gyro_unit})", source=s.source, field="units")
+        temps.append(block_temperatures(stream.t, stream.values, r.block_times))
+        legs.append(block_legs(stream.t, stream.values, r.block_times))
+        means.append(r.detection.means)
+        models += [acc_model0] * len(r.detection.blocks)
+        if gyro_fit is not None and s.has_gyro:
+            gyro.append(interval_means(s.t_gyro, lambda a, b, s=s: s.gyro[a:b], r.block_times,
+                                       1.0).means)
+    block_t = np.concatenate(temps)
+    fits = [fit_accel_bias_polynomial(block_t, np.concatenate(means), models,
+                                      first.calibration.g, np.concatenate(legs))]
+    if gyro_fit is not None and len(gyro) == len(results):
+        fits.append(fit_bias_polynomial(block_t, np.concatenate(gyro) - gyro_fit.model.b,
+                                        gyro_fit.model.b, "gyroscope"))
+    levels = ", ".join(f"{float(np.nanmean(t)):.1f}" for t in temps)
+    said = (f"from {len(results)} sessions of one device at {levels} deg C (their still poses "
+            "pooled, each at its own temperature)",)
+    return dataclasses.replace(first, temperature=tuple(
+        dataclasses.replace(f, notes=said + f.notes) for f in fits if f is not None))

@@ -24,6 +24,7 @@ from imucal.result import Result, Segment
 from imucal.stages.accel import AccFit
 from imucal.stages.gyro import GyroFit
 from imucal.stages.quality import BeforeAfter
+from imucal.stages.triads import angle_deg
 from imucal.warning import RunWarning
 
 
@@ -140,6 +141,8 @@ def _overview(result: Result) -> tuple[Line, ...]:
         Line("output", f"calibrated accelerometer in {cal.acc_unit} (|g| = {cal.g:g})"
                        + (", gyroscope in rad/s" if s.has_gyro else "")),
         *_magnetometer(result),
+        *_triads(result),
+        *(Line("temperature", n) for f in result.temperature for n in f.notes),
     )
 
 
@@ -162,6 +165,43 @@ def _magnetometer(result: Result) -> tuple[Line, ...]:
     return (Line("magnetometer", f"{fit.stream}: field {fmt(fit.field, '.4g')} {unit}{dip}; "
                                  f"|m| within {fmt(q.norm_rms_pct, '.2g')} % of it{held}; "
                                  f"{q.coverage:.0%} of directions reached{left}"),)
+
+
+def _triads(result: Result) -> tuple[Line, ...]:
+    """The other triads (method.md §11): each one's rotation to the reference and how well the
+    two agree once calibrated, then what was said about it."""
+    out = []
+    for tri in result.triads:
+        a, res = tri.agreement, tri.result
+        own = ("" if res is None or res.verdict is None
+               else f"; its own verdict: {res.verdict.level}")
+        if a is None:
+            text = "calibrated, not rotated" if res is not None else "not calibrated"
+        else:
+            text = (f"turned {a.angle_deg:.3f} deg from the reference (+- "
+                    f"{fmt(a.rotation.std_total_deg, '.3f')} deg, {a.blocks} shared still "
+                    f"poses); the "
+                    f"two agree within {a.held_out_rms_mg:.3g} mg RMS on poses held out "
+                    f"(before calibration {a.before_rms_mg:.3g} mg)")
+        out.append(Line("triad", f"{tri.name}: {text}{own}"))
+        if tri.gyro_agreement is not None:
+            g = tri.gyro_agreement
+            versus = ("" if g.accel_difference_deg is None
+                      else f", {g.accel_difference_deg:.3f} deg from its accelerometer's rotation")
+            out.append(Line("triad", f"{tri.gyro}: turned {angle_deg(np.eye(3), g.rotation.R):.3f}"
+                            f" deg from the reference's gyroscope (+- "
+                            f"{fmt(g.rotation.std_total_deg, '.3f')} deg, {g.turns} turns)"
+                            f"{versus}"))
+        v = tri.against_reference
+        if v is not None and res is not None:
+            own = res.segments[0].acc.model
+            dk = float(np.max(np.abs(v.model.K / own.K - 1))) * 1e6
+            db = float(np.max(np.abs(own.matrix @ (v.model.b - own.b)))) / res.calibration.g * 1e3
+            out.append(Line("triad", f"{tri.name} fitted to the reference's gravity vectors: "
+                            f"scales within {dk:.0f} ppm and bias within {db:.3g} mg of its own "
+                            f"fit ({v.rms_mg:.3g} mg RMS over {v.blocks} still poses)"))
+        out += [Line("triad", t) for t in tri.said]
+    return tuple(out)
 
 
 def _details(result: Result) -> tuple[Line, ...]:

@@ -22,6 +22,8 @@ from imucal.stages.gyro import GyroFit
 from imucal.stages.mag import MagFit
 from imucal.stages.noise import NoiseReport, still_noise
 from imucal.stages.quality import Quality
+from imucal.stages.temperature import BiasPolynomial
+from imucal.stages.triads import AgainstReference, GyroAgreement, TriadAgreement
 from imucal.stages.verdict import Verdict
 from imucal.warning import RunWarning
 
@@ -50,6 +52,28 @@ class Segment:
 
 
 @dataclass(frozen=True)
+class Triad:
+    """Another accelerometer triad of the session (method.md §11): its own run of the whole
+    method (``result``: None where it could not be calibrated, ``said`` tells why), with its
+    gyroscope where its IMU has one, and its rotation to the reference and agreement with it
+    once calibrated (``agreement``: None without enough shared still blocks), and its
+    gyroscope's rotation to the reference's from the turns (``gyro_agreement``, M14)."""
+
+    name: str  # the accelerometer stream's name, e.g. "acc sensor_accel:1"
+    gyro: str | None  # the gyroscope stream calibrated with it, if any
+    result: Result | None
+    agreement: TriadAgreement | None
+    said: tuple[str, ...] = ()
+    gyro_agreement: GyroAgreement | None = None
+    # Its M2 and rotation fitted to the reference's calibrated gravity vectors (M15), its
+    # output in its own calibrated unit; None without enough shared blocks.
+    against_reference: AgainstReference | None = None
+    # How far its clock read ahead of the reference's (s, from the motion both saw; its times
+    # were moved by it where it exceeded a couple of sample steps); None: not compared.
+    clock_offset_s: float | None = None
+
+
+@dataclass(frozen=True)
 class Result:
     """Everything a run produced: the calibration and every intermediate the viewer shows.
 
@@ -75,6 +99,12 @@ class Result:
     # the magnetometer over the whole session (M8, stages/mag.py); None without one, or when
     # it could not be calibrated (the warnings say why)
     magnetometer: MagFit | None = None
+    # The session's other triads, each calibrated on its own and put in this run's frame
+    # (method.md §11; imucal.pipeline.calibrate_triads); empty for a session of one triad.
+    triads: tuple[Triad, ...] = ()
+    # Each sensor's bias as a polynomial in temperature (method.md §12;
+    # imucal.pipeline.calibrate_temperature); empty unless asked for and a stream is there.
+    temperature: tuple[BiasPolynomial, ...] = ()
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

@@ -67,6 +67,8 @@ class Truth:
     g: float = 1.0
     pose_times: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     mag: MagTruth | None = None  # the magnetometer, when the session has one
+    triads: tuple[TriadTruth, ...] = ()  # the session's other accelerometer triads (§11)
+    temperature: TemperatureProfile | None = None  # the bias's drift with heat (§12)
 
     def to_dict(self) -> dict:
         def m(model: SensorModel | None) -> dict | None:
@@ -78,8 +80,115 @@ class Truth:
                 "accelerometer_after_change": m(self.acc2), "gyroscope_after_change": m(self.gyro2),
                 "t_change": self.t_change, "gyro_drift": self.gyro_drift.tolist(), "g": self.g,
                 "still_intervals": self.pose_times.tolist(),
-                "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"} | (
-                    {} if self.mag is None else {"magnetometer": self.mag.to_dict()})
+                "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"
+                } | ({} if self.mag is None else {"magnetometer": self.mag.to_dict()}) | (
+                    {"triads": [t.to_dict() for t in self.triads]} if self.triads else {}) | (
+                    {"temperature": self.temperature.to_dict()} if self.temperature else {})
+
+    def acc_bias_at(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the accelerometer's true bias (raw unit) at temperatures ``temp`` (M16)."""
+        extra = 0.0 if self.temperature is None else self.temperature.acc_drift(temp)
+        return self.acc.b + extra * self.g
+
+    def gyro_bias_at(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the gyroscope's true bias (rad/s) at temperatures ``temp`` (M16)."""
+        extra = 0.0 if self.temperature is None else self.temperature.gyro_drift(temp)
+        return self.gyro.b + extra
+
+
+@dataclass(frozen=True)
+class TemperatureProfile:
+    """The device's temperature over a session and what it does to the biases (method.md
+    §12, M16): a linear ramp from ``start`` to ``end`` deg C (``steps`` > 0: that many equal
+    steps instead), logged at ``rate`` Hz with ``noise`` deg C; the accelerometer's bias moves
+    by ``sum_j acc[j-1] (T - ref)^j`` g and the gyroscope's by ``sum_j gyro[j-1] (T - ref)^j``
+    rad/s, each a (p, 3) array of coefficients per deg C^j (p the true order)."""
+
+    start: float = 15.0
+    end: float = 45.0
+    acc: tuple[tuple[float, float, float], ...] = ((4e-4, -3e-4, 2e-4), (1e-5, 1.5e-5, -1e-5))
+    gyro: tuple[tuple[float, float, float], ...] = ((1e-4, -8e-5, 6e-5), (3e-6, -2e-6, 4e-6))
+    ref: float = 30.0
+    rate: float = 2.0
+    noise: float = 0.05
+    steps: int = 0
+    back: bool = False  # up to ``end`` in the first half, back down to ``start`` in the second
+    # Added to the bias while cooling (g, rad/s): a hysteresis no polynomial in T models.
+    acc_hysteresis: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # The accelerometer's scales: K(T) = K (1 + acc_scale (T - ref)), relative per deg C.
+    acc_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_hysteresis: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def cooling(self, t: np.ndarray, duration: float) -> np.ndarray:
+        """(N,) True where the temperature is falling (the second half of a ``back`` ramp)."""
+        return np.asarray(t) > duration / 2 if self.back else np.zeros(len(t), bool)
+
+    def at(self, t: np.ndarray, duration: float) -> np.ndarray:
+        """The true temperature at times ``t`` (deg C)."""
+        frac = np.clip(t / max(duration, 1e-9), 0.0, 1.0)
+        if self.back:
+            frac = 1.0 - np.abs(2.0 * frac - 1.0)
+        if self.steps > 0:
+            frac = np.minimum(np.floor(frac * self.steps), self.steps - 1) / max(self.steps - 1, 1)
+        return self.start + (self.end - self.start) * frac
+
+    @staticmethod
+    def _poly(coefs: tuple, temp: np.ndarray) -> np.ndarray:
+        c = np.asarray(coefs, float).reshape(-1, 3)
+        dt = np.asarray(temp, float).reshape(-1)
+        return sum(c[j][None, :] * dt[:, None] ** (j + 1) for j in range(len(c)))
+
+    def acc_drift(self, temp: np.ndarray) -> np.ndarray:
+        return self._poly(self.acc, np.asarray(temp) - self.ref)
+
+    def gyro_drift(self, temp: np.ndarray) -> np.ndarray:
+        return self._poly(self.gyro, np.asarray(temp) - self.ref)
+
+    def to_dict(self) -> dict:
+        return {"start_degC": self.start, "end_degC": self.end, "steps": self.steps,
+                "back": self.back, "acc_hysteresis_g": list(self.acc_hysteresis),
+                "acc_scale_per_degC": list(self.acc_scale),
+                "gyro_hysteresis_rad_s": list(self.gyro_hysteresis),
+                "reference_degC": self.ref, "acc_bias_coefficients_g": [list(c) for c in self.acc],
+                "gyro_bias_coefficients_rad_s": [list(c) for c in self.gyro],
+                "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M16)"}
+
+
+@dataclass(frozen=True)
+class SecondTriad:
+    """A second accelerometer triad in the same device (method.md §11): turned by a random
+    rotation of ``rotation_deg`` about a random axis from the first, clipped at ``range_g``, with
+    its own errors, noise (g per sample), rate and clock (started a random fraction of a sample
+    late)."""
+
+    rotation_deg: float = 3.0
+    range_g: float = 8.0
+    noise: float = 0.006
+    rate: float | None = None  # Hz; None: the first triad's
+    mis: float = 0.01
+    scale: float = 0.03
+    bias: float = 0.05
+    gyro: bool = False  # a gyroscope in the same IMU (its frame the triad's), named g2
+    gyro_noise: float = 0.004  # rad/s per sample
+
+
+@dataclass(frozen=True)
+class TriadTruth:
+    """What made a second triad: ``u = R v`` takes its calibrated frame to the first's (M12)."""
+
+    name: str
+    model: SensorModel  # M2 in the triad's raw unit
+    R: np.ndarray  # (3, 3) to the first triad's frame
+    range: float  # clipping level, in the raw unit
+    noise: float  # per sample, g
+    gyro: SensorModel | None = None  # M4 of its IMU's gyroscope (rad/s), if it has one
+
+    def to_dict(self) -> dict:
+        g = None if self.gyro is None else {"T": self.gyro.T.tolist(), "K": self.gyro.K.tolist(),
+                                            "b": self.gyro.b.tolist()}
+        return {"name": self.name, "T": self.model.T.tolist(), "K": self.model.K.tolist(),
+                "b": self.model.b.tolist(), "rotation_to_reference": self.R.tolist(),
+                "range": self.range, "noise_g": self.noise, "gyroscope": g}
 
 
 def random_acc_model(rng: np.random.Generator, mis: float = 0.01, scale: float = 0.03,
@@ -177,6 +286,8 @@ def make_session(
     mag_disturbance_size: float = 0.3,
     coplanar: bool = False,
     acc_drift: float = 0.0,
+    second_acc: SecondTriad | tuple[SecondTriad, ...] | None = None,
+    temperature: TemperatureProfile | None = None,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -197,6 +308,12 @@ def make_session(
     in time along a random direction (drawn apart: the rest of the session is the same).
     ``coplanar`` turns the device about its x axis only: every pose's gravity lies in one
     plane, so the data cannot determine every parameter (an ill-posed session).
+    ``second_acc`` adds a second accelerometer triad (``Session.others``, named ``a2`` as a
+    table's a2x… columns are; a tuple of them: a2, a3, ...) and its truth (``Truth.triads``),
+    drawn from a generator of its own: the first triad and the gyroscope are the same as
+    without it. ``temperature`` makes
+    the biases drift with a temperature profile and adds its stream (``temp``, in
+    ``Session.others``); the noise drawn is the same as without it.
     """
     rng = np.random.default_rng(seed)
     motion = make_motion(rng, poses, still, move, init_still, coplanar)
@@ -233,6 +350,21 @@ def make_session(
         raw_a += np.outer(t_a / max(duration, 1e-9), acc_drift * way / np.linalg.norm(way))
     raw_g = _distort(w, t_g, gyro_truth, gyro2, t_change) + drift * t_g[:, None]
     raw_g += rng.normal(0, gyro_noise, raw_g.shape)
+    temp_stream = None
+    if temperature is not None:  # M16: the bias moves with heat, in g and rad/s
+        heat_a = temperature.at(t_a, duration)
+        # K(T): the raw reading about the bias shrinks as the scale grows (M2 inverted)
+        raw_a = acc_truth.b + (raw_a - acc_truth.b) / (
+            1.0 + np.asarray(temperature.acc_scale)[None, :] * (heat_a - temperature.ref)[:, None])
+        raw_a += temperature.acc_drift(heat_a)
+        raw_g += temperature.gyro_drift(temperature.at(t_g, duration))
+        raw_a += np.outer(temperature.cooling(t_a, duration), temperature.acc_hysteresis)
+        raw_g += np.outer(temperature.cooling(t_g, duration), temperature.gyro_hysteresis)
+        t_t = np.arange(0.0, duration, 1.0 / temperature.rate)
+        heat = temperature.at(t_t, duration) + np.random.default_rng([seed, 3]).normal(
+            0, temperature.noise, len(t_t))
+        temp_stream = Stream("temp", "temp", t_t, heat[:, None], "degC",
+                             "synthetic temperature", time_source="the session's clock")
 
     g = 1.0
     if acc_unit == "m/s^2":
@@ -249,11 +381,21 @@ def make_session(
         gyro2 = _rescale(gyro2, counts_per_rad_s, 32768.0, 1.0)
         drift = drift * counts_per_rad_s
 
+    others, triads = (), ()
+    specs = (second_acc,) if isinstance(second_acc, SecondTriad) else (second_acc or ())
+    for i, spec in enumerate(specs):  # a2 (g2), a3 (g3), ...: each from a generator of its own
+        streams, tt = _second_triad(motion, spec, seed, acc_rate, acc_unit, number=i + 2)
+        others, triads = others + streams, triads + (tt,)
+    if temp_stream is not None:
+        if acc_unit == "counts" or gyro_unit == "counts":
+            raise ValueError("a temperature profile is made in g or m/s^2 and rad/s")
+        others += (temp_stream,)
     session = Session(acc=raw_a, t_acc=t_a, gyro=raw_g, t_gyro=t_g, acc_unit=acc_unit,
                       gyro_unit="counts" if gyro_unit == "counts" else "rad/s",
-                      source=f"synthetic(seed={seed}, poses={poses})")
+                      source=f"synthetic(seed={seed}, poses={poses})", others=others)
     truth = Truth(acc=acc_truth, gyro=gyro_truth, acc2=acc2, gyro2=gyro2, t_change=t_change,
-                  gyro_drift=drift, g=g, pose_times=motion.still)
+                  gyro_drift=drift, g=g, pose_times=motion.still, triads=triads,
+                  temperature=temperature)
     if mag_rate is not None:
         session, truth = add_magnetometer(
             session, truth, motion, seed, rate=mag_rate, field=mag_field, dip_deg=mag_dip_deg,
@@ -312,6 +454,40 @@ def add_magnetometer(session: Session, truth: Truth, motion: Motion, seed: int, 
                   disturbance=None if disturbance is None else tuple(map(float, disturbance)),
                   disturbance_field=extra)
     return replace(session, others=(stream, *session.others)), replace(truth, mag=mt)
+
+
+def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
+                  acc_unit: str, number: int = 2) -> tuple[tuple[Stream, ...], TriadTruth]:
+    """The second accelerometer's stream (and its gyroscope's) and truth (method.md §11, M12:
+    ``u = R v``; the gyroscope in the same frame, so M14's rotation is ``R`` too)."""
+    if acc_unit not in ("g", "m/s^2"):
+        raise ValueError(f"a second triad is made in g or m/s^2, not {acc_unit!r}")
+    rng = np.random.default_rng([seed, 2] if number == 2 else [seed, 2, number])
+    axis = rng.normal(0, 1, 3)
+    axis /= np.linalg.norm(axis)
+    R = quat.to_matrix(quat.from_rotvec(axis[None] * np.radians(spec.rotation_deg)))[0]
+    model = random_acc_model(rng, spec.mis, spec.scale, spec.bias)
+    rate = spec.rate or acc_rate
+    duration = float(motion.still[-1, 1])
+    t = (rng.uniform(0, 1) + np.arange(int(duration * rate) - 1)) / rate
+    q, w = motion.at(t)
+    v = quat.rotate_inverse(q, np.array([0.0, 0.0, 1.0])) @ R  # v = R' u, row by row
+    raw = model.invert(v) + rng.normal(0, spec.noise, v.shape)
+    raw = np.clip(raw, -spec.range_g, spec.range_g)  # the triad's range: flat beyond it
+    g = STANDARD_GRAVITY if acc_unit == "m/s^2" else 1.0
+    raw *= g
+    model = _rescale(model, g, 0.0, g)
+    a, g_name = f"a{number}", f"g{number}"
+    streams = (Stream("acc", a, t, raw, acc_unit, f"synthetic accelerometer {number} ({a}x, "
+                      f"{a}y, {a}z)", time_source="its own clock"),)
+    gyro = None
+    if spec.gyro:  # drawn after everything above: the accelerometer is the same without it
+        gyro = random_gyro_model(rng)
+        raw_g = gyro.invert(w @ R) + rng.normal(0, spec.gyro_noise, w.shape)
+        streams += (Stream("gyro", g_name, t, raw_g, "rad/s", f"synthetic gyroscope {number} "
+                           f"({g_name}x, {g_name}y, {g_name}z)", time_source="its own clock"),)
+    return streams, TriadTruth(name=a, model=model, R=R, range=spec.range_g * g,
+                               noise=spec.noise, gyro=gyro)
 
 
 def _distort(ideal: np.ndarray, t: np.ndarray, m1: SensorModel, m2: SensorModel | None,

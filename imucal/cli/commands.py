@@ -81,6 +81,24 @@ def calibrate(
         "--spec", metavar="LIMITS.toml", show_default=False,
         help="Limits the unit must be within (as for 'imucal batch'): out of them, the "
              "verdict is 'not usable'.")] = None,
+    all_imus: Annotated[bool, typer.Option(
+        "--all-imus", help="Also calibrate every other accelerometer triad of the file (other "
+                           "IMUs of a log, a2x… columns), each with its own gyroscope, and put "
+                           "each in the reference's frame: the calibrated one, which "
+                           "--acc/--gyro choose (method.md §11).")] = False,
+    triad: Annotated[list[str] | None, typer.Option(
+        "--triad", metavar="NAME", help="Also calibrate this other accelerometer triad (a "
+                                        "stream or IMU name; repeat for several), as "
+                                        "--all-imus does for all.")] = None,
+    temperature: Annotated[bool, typer.Option(
+        "--temperature", help="Fit each sensor's bias as a polynomial in the file's temperature "
+                              "stream (order 0-3 by cross-validation; never extrapolated "
+                              "beyond the temperatures seen; method.md §12).")] = False,
+    same_device: Annotated[list[Path] | None, typer.Option(
+        "--same-device", metavar="SESSION", show_default=False,
+        help="Another recording of the same device at another temperature (repeat for "
+             "several): the bias in temperature is fitted to all their still poses "
+             "(method.md §12); implies --temperature.")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -94,7 +112,7 @@ def calibrate(
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
-    inputs = [session, load_kw["gyro_path"], spec]
+    inputs = [session, load_kw["gyro_path"], spec, *(same_device or [])]
     check_inputs(inputs)
     limits = None
     if spec is not None:
@@ -121,7 +139,37 @@ def calibrate(
         with progress.stage(f"loading {session.name}"):
             sess = imucal.load_session(session, **load_kw)
         with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
-            result = imucal.calibrate(sess, **settings)
+            try:
+                result = imucal.calibrate(sess, **settings)
+            except ImucalError as e:
+                if not (all_imus or triad):
+                    raise
+                # A file no triad calibrates from (a flight): where to see its IMUs anyway.
+                raise ImucalError(f"{e.problem}; imucal inspect shows how the file's IMUs "
+                                  "disagree as logged", source=e.source, field=e.field) from None
+        if same_device:
+            from imucal.pipeline import calibrate_same_device
+
+            runs = [result]
+            for other in same_device:
+                with progress.stage(f"calibrating {other.name} (the same device)"):
+                    runs.append(imucal.calibrate(imucal.load_session(other, **load_kw),
+                                                 **settings))
+            result = calibrate_same_device(runs)
+        elif temperature:
+            from imucal.pipeline import calibrate_temperature
+
+            result = calibrate_temperature(result)
+            if not result.temperature:
+                raise ImucalError("--temperature: the file holds no temperature stream (a "
+                                  "temp column, or a log's) covering the still poses",
+                                  source=str(session))
+        if all_imus or triad:
+            from imucal.pipeline import calibrate_triads
+
+            with progress.stage("calibrating the other triads"):
+                result = calibrate_triads(result, "all" if all_imus else triad,
+                                          temperature or bool(same_device))
         if limits is not None:
             result = _judged_by_spec(result, limits)
         if result.verdict is not None and not result.verdict.usable and not allow_poor:

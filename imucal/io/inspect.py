@@ -50,6 +50,8 @@ class FileLines:
     streams: tuple[StreamLine, ...]
     notes: tuple[str, ...]
     error: str | None = None
+    # Several accelerometers: each as logged against the first (method.md §11), one line each.
+    imus: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -87,7 +89,7 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
                 picked, said = set(), (e.problem,)
             return FileLines(name, FORMATS[key][1],
                              tuple(_line(s, id(s) in picked) for s in streams.streams),
-                             streams.notes + said)
+                             streams.notes + said, imus=_imus(streams.streams, picked))
         sess = load_session(p, **load_kw)
         pair = _session_streams(sess)
         mag = _first_mag(sess.others)
@@ -101,6 +103,18 @@ def _first_mag(others) -> set[int]:
     """The magnetometer calibrate takes beside the pair: the first (stages/mag.py)."""
     return {id(s) for s in others if s.kind == "mag"} and {
         id(next(s for s in others if s.kind == "mag"))}
+
+
+def _imus(streams: tuple[Stream, ...], picked: set[int]) -> tuple[str, ...]:
+    """Two or more accelerometers: each as logged against the one calibrate takes (method.md
+    §11); nothing for one."""
+    from imucal.stages.triads import logged_imus, logged_lines
+
+    accs = sorted((s for s in streams if s.kind == "acc" and s.samples),
+                  key=lambda s: id(s) not in picked)
+    if len(accs) < 2:
+        return ()
+    return tuple(logged_lines(logged_imus(accs, [s for s in streams if s.kind == "temp"])))
 
 
 def _session_streams(sess) -> list[Stream]:
@@ -131,6 +145,8 @@ def as_text(lines: FileLines) -> list[str]:
         out.append("  * taken by calibrate, apply, noise, view and batch unless --acc/--gyro/"
                    "--mag name others")
     out += [f"  note: {n}" for n in lines.notes]
+    if lines.imus:
+        out += [f"  {lines.imus[0]}:"] + [f"    {t}" for t in lines.imus[1:]]
     return out
 
 
