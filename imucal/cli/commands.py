@@ -285,6 +285,14 @@ def synth(
     cut_last_line: Annotated[bool, typer.Option(
         "--cut-last-line", help="CSV: end in the middle of the last row, as a logger killed "
                                 "mid-write does.")] = False,
+    stream: Annotated[str | None, typer.Option(
+        "--stream", metavar="-|tcp://HOST:PORT|udp://HOST:PORT", show_default=False,
+        help="Also send the session as a device would, a line per sample (t,ax,ay,az,gx,gy,gz): "
+             "to standard output, to one TCP client (listening on HOST:PORT) or as UDP "
+             "datagrams, for 'imucal capture'.")] = None,
+    speed: Annotated[float | None, typer.Option(
+        "--speed", metavar="X", callback=positive, show_default=False,
+        help="With --stream: X times faster than real time [default: real time].")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
@@ -322,10 +330,17 @@ def synth(
             write_session_mat(out, sess, gyro_unit=gyro_unit)
         write_truth(truth, tr)
     change = "" if tr.t_change is None else f", parameters change at {tr.t_change:.1f} s"
+    import sys
+
     print(f"session         {poses} poses, {sess.duration:.1f} s, accelerometer "
           f"{len(sess.acc)} samples at {fmt_rate(sess.acc_rate)} ({acc_unit}), gyroscope "
           f"{len(sess.gyro)} samples at {fmt_rate(sess.gyro_rate)} ({gyro_unit}){change}\n"
-          f"wrote {out}\nwrote {truth}")
+          f"wrote {out}\nwrote {truth}", file=sys.stderr if stream == "-" else sys.stdout,
+          flush=True)
+    if stream is not None:
+        from imucal.capture.send import stream_session
+
+        stream_session(sess, stream, 1.0 if speed is None else speed)
 
 
 @app.command()

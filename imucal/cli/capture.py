@@ -1,0 +1,114 @@
+"""``imucal capture``: calibrate while you record (issue 25). Parses its options, runs the core's
+capture loop (imucal.capture), then calibrates the session file exactly as ``imucal calibrate``
+does (the same function), so DIR/calib.json is what ``imucal calibrate DIR/session.csv`` gives.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from imucal.cli.commands import app, calibrate
+from imucal.cli.options import INPUT_OPTIONS, SETTING_OPTIONS, positive
+
+_TARGETS = "quick, default or factory"
+
+
+def _target(value: str) -> str:
+    from imucal.capture.stop import PRESETS
+
+    if value not in PRESETS:
+        raise typer.BadParameter(f"expected {_TARGETS}, got {value!r}")
+    return value
+
+
+@app.command("capture")
+def capture_cmd(
+    source: Annotated[str, typer.Argument(
+        metavar="SOURCE", show_default=False,
+        help="'-' (lines on standard input), tcp://HOST:PORT (connect), udp://[HOST]:PORT "
+             "(listen) or serial:/dev/ttyX?baud=N.")],
+    out: Annotated[str, typer.Option(
+        "--out", "-o", metavar="DIR", show_default=False,
+        help="Directory to write session.csv (every sample as received) and calib.json.")],
+    until: Annotated[float | None, typer.Option(
+        "--until", metavar="SECONDS", callback=positive, show_default=False,
+        help="Stop after this long even if the targets are not met.")] = None,
+    target: Annotated[str, typer.Option(
+        "--target", metavar="quick|default|factory", callback=_target,
+        help="How good is enough: every parameter's standard error under the preset's "
+             "target. quick: misalignment 1 mrad, scale 0.1 %, accelerometer bias 1 mg; "
+             "default: 0.5 mrad, 0.05 %, 0.5 mg; factory: 0.25 mrad, 0.025 %, 0.25 mg "
+             "(and the verdict 'good').")] = "default",
+    columns: Annotated[str | None, typer.Option(
+        "--columns", metavar="NAMES", show_default=False,
+        help="The names of the fields in order, for a device that sends no header line "
+             "(e.g. t,ax,ay,az,gx,gy,gz; the names the table loader understands).")] = None,
+    rate: Annotated[float | None, typer.Option(
+        "--rate", metavar="HZ", callback=positive, show_default=False,
+        help="Sample rate, for a stream without a time column (the samples are numbered).")
+    ] = None,
+    no_view: Annotated[bool, typer.Option(
+        "--no-view", help="No live viewer (scripts and tests); the guide is printed.")] = False,
+    json_status: Annotated[bool, typer.Option(
+        "--json-status", help="The guide as one JSON object a line on standard output (for a "
+                              "factory script), instead of text.")] = False,
+    rrd: Annotated[str | None, typer.Option(
+        "--rrd", metavar="RUN.rrd", help="Also save a Rerun recording of the calibration.")
+    ] = None,
+) -> int:
+    """Capture a device's stream and calibrate it while you record: the guide says which pose
+    to hold next; the capture stops by itself when the calibration is good enough (--target),
+    at --until, at the end of the stream or on Ctrl-C, then calibrates DIR/session.csv with
+    the full method into DIR/calib.json.
+
+    Exit 0 when the targets were met and the verdict is usable, 1 otherwise (as batch's
+    pass/fail). Nothing is lost: session.csv is written as samples arrive (at least every
+    0.5 s); garbled lines are counted and skipped.
+    """
+    from imucal.capture.run import capture
+    from imucal.capture.sources import open_source
+    from imucal.capture.stop import targets
+
+    goal = targets(target)
+    src = open_source(source)
+
+    def on_status(st: dict) -> None:
+        if json_status:
+            line = json.dumps(st)
+        elif st["event"] in ("hold", "state", "tick", "calibration"):
+            line = st["guide"]
+            if st["event"] == "calibration" and st["calibration"] is not None:
+                c = st["calibration"]
+                line = (f"calibration so far: {c['verdict']}; worst {c['worst']} at "
+                        f"{c['ratio']:.2f} x its target")
+        else:
+            return
+        print(line, flush=True)
+
+    if not no_view:
+        # The live view (viewer/) is not written yet: the guide goes to the terminal.
+        print("live view not available yet: the guide follows as text (--no-view hides "
+              "this line)", file=sys.stderr)
+    report = capture(src, out, goal, columns=columns, rate=rate, until=until,
+                     on_status=on_status)
+    out_stream = sys.stderr if json_status else sys.stdout
+    print("\n".join(report.lines()), file=out_stream, flush=True)
+    options = {name: default for name, _, default in INPUT_OPTIONS + SETTING_OPTIONS}
+    saved = sys.stdout
+    try:
+        if json_status:
+            sys.stdout = sys.stderr  # the summary stays off the JSON lines
+        calibrate.__wrapped__(session=report.session, out=str(Path(out) / "calib.json"),
+                              rrd=rrd, calibrated=None, allow_poor=False, spec=None,
+                              options=options, verbose=False)
+    finally:
+        sys.stdout = saved
+    met = report.progress is not None and report.progress.met
+    if not met:
+        print(f"targets not met ({goal.text()}): fail", file=out_stream)
+    return 0 if met else 1
