@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import select
 import socket
+import time
 from urllib.parse import parse_qs, urlsplit
 
 from imucal.errors import ImucalError
@@ -62,10 +63,18 @@ class TcpSource(Source):
 
     def __init__(self, host: str, port: int, connect_timeout: float = 5.0):
         self.describe = f"tcp://{host}:{port}"
-        try:
-            self.sock = socket.create_connection((host, port), timeout=connect_timeout)
-        except OSError as e:
-            raise ImucalError(f"cannot connect: {e.strerror or e}", source=self.describe) from e
+        # A device (or a replay) that is still starting refuses at first: retry until the
+        # timeout, then say why.
+        deadline = time.monotonic() + connect_timeout
+        while True:
+            try:
+                self.sock = socket.create_connection((host, port), timeout=connect_timeout)
+                break
+            except OSError as e:
+                if time.monotonic() >= deadline:
+                    raise ImucalError(f"cannot connect: {e.strerror or e}",
+                                      source=self.describe) from e
+                time.sleep(0.1)
         self.sock.setblocking(False)
 
     def fileno(self) -> int:

@@ -1,0 +1,207 @@
+"""imucal capture end to end (issue 25): a synthetic device streamed over standard input, TCP,
+UDP and a serial pseudo-terminal stops by itself with a calibration within the truth's
+tolerances, and its calib.json is exactly `imucal calibrate DIR/session.csv`'s; a SIGKILL leaves
+every flushed sample readable; garbled lines are counted; a wrong baud rate is one clear line."""
+
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import imucal
+from imucal.capture.run import capture
+from imucal.capture.send import session_lines
+from imucal.capture.sources import SerialSource, TcpSource, UdpSource
+from imucal.capture.stop import PRESETS
+from imucal.cli.main import main
+from imucal.errors import ImucalError
+from imucal.models import acc_theta, gyro_theta
+from imucal.synth import make_session
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+CLI = [sys.executable, "-c", "import sys; from imucal.cli.main import main; sys.exit(main())"]
+POSES, SEED = 40, 3  # about 200 s at 100 Hz; the default target is met at about 20 poses
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return make_session(poses=POSES, seed=SEED)
+
+
+def _synth(tmp: Path, stream: str, speed: str = "50", **kw) -> subprocess.Popen:
+    return subprocess.Popen(CLI + ["synth", str(tmp / "s.mat"), "--truth", str(tmp / "t.json"),
+                                   "--poses", str(POSES), "--seed", str(SEED), "--stream",
+                                   stream, "--speed", speed], env=ENV, stderr=subprocess.PIPE,
+                            **kw)
+
+
+def _within_truth(path: Path, truth) -> imucal.Result:
+    """The session file calibrates to the truth within four standard errors."""
+    result = imucal.calibrate(imucal.load_session(path))
+    seg = result.segments[0]
+    za = (acc_theta(seg.acc.model) - acc_theta(truth.acc)) / seg.acc.std
+    zg = (gyro_theta(seg.gyro.model) - gyro_theta(truth.gyro)) / seg.gyro.std[:9]
+    assert np.abs(za).max() < 4 and np.abs(zg).max() < 4, (za, zg)
+    return result
+
+
+def _rows(path: Path) -> int:
+    return len(path.read_text().splitlines()) - 1
+
+
+def test_stdin_stops_by_itself_and_equals_batch(tmp_path, truth):
+    session, tr = truth
+    synth = _synth(tmp_path, "-", stdout=subprocess.PIPE)
+    out = tmp_path / "D"
+    try:
+        cap = subprocess.run(CLI + ["capture", "-", "--out", str(out), "--no-view"],
+                             stdin=synth.stdout, capture_output=True, text=True, env=ENV,
+                             timeout=120)
+    finally:
+        synth.stdout.close()
+        synth.kill()
+        synth.wait()
+    assert cap.returncode == 0, cap.stderr
+    assert "stopped: targets met" in cap.stdout and "0 garbled lines" in cap.stdout
+    # Stopped before the stream's end, with most poses still to come.
+    rows = _rows(out / "session.csv")
+    assert 20 * 100 < rows < 0.8 * len(session.t_acc)
+    # Every sample as received: the lines the device sent, in order.
+    _, lines = session_lines(session)
+    assert (out / "session.csv").read_text().splitlines()[1:] == lines[:rows]
+    assert main(["calibrate", str(out / "session.csv"), "--out", str(tmp_path / "b.json")]) == 0
+    assert (out / "calib.json").read_bytes() == (tmp_path / "b.json").read_bytes()
+    _within_truth(out / "session.csv", tr)
+
+
+def _free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_tcp(tmp_path, truth):
+    port = _free_port(socket.SOCK_STREAM)
+    synth = _synth(tmp_path, f"tcp://127.0.0.1:{port}", stdout=subprocess.DEVNULL)
+    try:
+        report = capture(TcpSource("127.0.0.1", port, connect_timeout=30), tmp_path / "D",
+                         PRESETS["default"], until=60)
+    finally:
+        synth.kill()
+        synth.wait()
+    assert report.stopped == "targets met" and report.garbled == 0
+    assert report.samples == _rows(report.session) < 0.8 * len(truth[0].t_acc)
+    _within_truth(report.session, truth[1])
+
+
+def test_udp(tmp_path, truth):
+    source = UdpSource("127.0.0.1", 0)
+    synth = _synth(tmp_path, f"udp://127.0.0.1:{source.port}", stdout=subprocess.DEVNULL)
+    try:
+        report = capture(source, tmp_path / "D", PRESETS["default"], until=60)
+    finally:
+        synth.kill()
+        synth.wait()
+    assert report.stopped == "targets met" and report.garbled == 0
+    _within_truth(report.session, truth[1])
+
+
+class _Device(threading.Thread):
+    """Writes bytes to a pseudo-terminal's master side until done or stopped."""
+
+    def __init__(self, fd: int, data: bytes):
+        super().__init__(daemon=True)
+        self.fd, self.data, self.stop = fd, data, threading.Event()
+        os.set_blocking(fd, False)
+
+    def run(self) -> None:
+        data = memoryview(self.data)
+        while len(data) and not self.stop.is_set():
+            if select.select([], [self.fd], [], 0.1)[1]:
+                try:
+                    data = data[os.write(self.fd, data[:4096]):]
+                except BlockingIOError:
+                    pass
+
+
+def test_serial_pty_with_garbled_lines(tmp_path, truth):
+    session, tr = truth
+    header, lines = session_lines(session)
+    garbled = {500: "0.1,0.2", 900: "\x00\xff junk", 1500: "5.0,1,x,3,4,5,6"}
+    sent = [header] + [garbled.get(i, "") + "\n" + ln if i in garbled else ln
+                       for i, ln in enumerate(lines)]
+    master, slave = os.openpty()
+    dev = _Device(master, ("\r\n".join(sent) + "\r\n").encode("latin-1"))
+    source = SerialSource(os.ttyname(slave), 115200)
+    dev.start()
+    try:
+        report = capture(source, tmp_path / "D", PRESETS["default"], until=60)
+    finally:
+        dev.stop.set()
+        dev.join()
+        os.close(master)
+        os.close(slave)
+    assert report.stopped == "targets met"
+    assert report.garbled == 3
+    got = report.session.read_text().splitlines()[1:]
+    assert got == lines[:len(got)] and len(got) > 2000
+    _within_truth(report.session, tr)
+
+
+def test_wrong_baud_rate_is_one_clear_line(tmp_path):
+    master, slave = os.openpty()
+    noise = np.random.default_rng(0).integers(0, 256, 3000, dtype=np.uint8).tobytes()
+    dev = _Device(master, noise.replace(b"\n", b"\x80"))
+    source = SerialSource(os.ttyname(slave), 9600)
+    dev.start()
+    try:
+        with pytest.raises(ImucalError) as e:
+            capture(source, tmp_path / "D", PRESETS["default"], no_data_s=1.0)
+    finally:
+        dev.stop.set()
+        dev.join()
+        os.close(master)
+        os.close(slave)
+    msg = str(e.value)
+    assert "\n" not in msg and "baud rate" in msg and "no valid sample in 1 s" in msg
+    assert "3000 bytes" in msg or "bytes" in msg
+    assert not (tmp_path / "D" / "session.csv").exists()
+
+
+def test_sigkill_leaves_every_flushed_sample(tmp_path, truth):
+    session, _ = truth
+    header, lines = session_lines(session)
+    out = tmp_path / "D"
+    cap = subprocess.Popen(CLI + ["capture", "-", "--out", str(out), "--no-view",
+                                  "--target", "factory"], stdin=subprocess.PIPE,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=ENV)
+    try:
+        first = 6000  # 60 s at 100 Hz: 10 poses, short of any target
+        cap.stdin.write(("\n".join([header] + lines[:first]) + "\n").encode())
+        cap.stdin.flush()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not (
+                (out / "session.csv").exists() and _rows(out / "session.csv") >= first):
+            time.sleep(0.05)
+        # More samples, then a pause longer than the flush interval, then SIGKILL.
+        cap.stdin.write(("\n".join(lines[first:first + 1000]) + "\n").encode())
+        cap.stdin.flush()
+        time.sleep(1.5)
+        cap.send_signal(signal.SIGKILL)
+        cap.wait(timeout=30)
+    finally:
+        cap.kill()
+    assert cap.returncode == -signal.SIGKILL
+    sess = imucal.load_session(out / "session.csv")
+    assert len(sess.t_acc) == first + 1000
+    np.testing.assert_array_equal(sess.acc, session.acc[:first + 1000])
+    assert imucal.calibrate(sess).verdict.usable
