@@ -40,13 +40,21 @@ class CaptureReport:
     orientations: int
     duration_s: float
     write_error: str | None = None  # the OS error that stopped the writing (a full disk)
+    final: Progress | None = None  # the whole session file's calibration against the targets
+
+    @property
+    def passed(self) -> bool:
+        """The factory's pass: the whole session's calibration meets the targets."""
+        return self.final is not None and self.final.met
 
     def lines(self) -> list[str]:
         out = [f"capture         {self.samples} samples in {self.duration_s:.1f} s, "
                f"{plural(self.garbled, 'garbled line')} skipped; "
                f"{self.holds} holds, {self.orientations} poses; stopped: {self.stopped}",
                f"running fits    {self.calibrations}"
-               + (f"; last {self.progress.text()}" if self.progress is not None else "")]
+               + (f"; last {self.progress.text()}" if self.progress is not None else ""),
+               "whole session   " + (self.final.text() if self.final is not None else
+                                     "does not calibrate")]
         if self.write_error:
             out.append(f"warning: writing stopped: {self.write_error}; the session holds "
                        f"the samples before it")
@@ -141,11 +149,17 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
         source.close()
     if parser.valid == 0:
         raise _no_data(source, parser, time.monotonic() - start)
+    duration = time.monotonic() - start
+    try:  # the pass/fail is the whole file's, not the last running fit's
+        final = progress(calibrate_file(writer.path), goal)
+    except ImucalError:
+        final = None
+    last = final if final is not None else last
     emit("stop")
     return CaptureReport(session=writer.path, samples=writer.rows, garbled=parser.garbled,
                          stopped=stopped, progress=last, calibrations=fits,
                          holds=st.holds, orientations=st.orientations,
-                         duration_s=time.monotonic() - start, write_error=writer.error)
+                         duration_s=duration, write_error=writer.error, final=final)
 
 
 def _fit_so_far(writer: SessionWriter, goal: Targets) -> Progress:

@@ -108,7 +108,6 @@ def capture_cmd(
                               options=options, verbose=False)
     finally:
         sys.stdout = saved
-    met = report.progress is not None and report.progress.met
-    if not met:
+    if not report.passed:
         print(f"targets not met ({goal.text()}): fail", file=out_stream)
-    return 0 if met else 1
+    return 0 if report.passed else 1

@@ -3,6 +3,7 @@ UDP and a serial pseudo-terminal stops by itself with a calibration within the t
 tolerances, and its calib.json is exactly `imucal calibrate DIR/session.csv`'s; a SIGKILL leaves
 every flushed sample readable; garbled lines are counted; a wrong baud rate is one clear line."""
 
+import json
 import os
 import select
 import signal
@@ -19,7 +20,7 @@ import pytest
 import imucal
 from imucal.capture.run import capture
 from imucal.capture.send import session_lines
-from imucal.capture.sources import SerialSource, TcpSource, UdpSource
+from imucal.capture.sources import SerialSource, UdpSource
 from imucal.capture.stop import PRESETS
 from imucal.cli.main import main
 from imucal.errors import ImucalError
@@ -63,7 +64,8 @@ def test_stdin_stops_by_itself_and_equals_batch(tmp_path, truth):
     synth = _synth(tmp_path, "-", stdout=subprocess.PIPE)
     out = tmp_path / "D"
     try:
-        cap = subprocess.run(CLI + ["capture", "-", "--out", str(out), "--no-view"],
+        cap = subprocess.run(CLI + ["capture", "-", "--out", str(out), "--no-view",
+                                    "--json-status"],
                              stdin=synth.stdout, capture_output=True, text=True, env=ENV,
                              timeout=120)
     finally:
@@ -71,7 +73,16 @@ def test_stdin_stops_by_itself_and_equals_batch(tmp_path, truth):
         synth.kill()
         synth.wait()
     assert cap.returncode == 0, cap.stderr
-    assert "stopped: targets met" in cap.stdout and "0 garbled lines" in cap.stdout
+    # --json-status: one object a line on stdout, the summary on stderr.
+    assert "stopped: targets met" in cap.stderr and "0 garbled lines" in cap.stderr
+    status = [json.loads(line) for line in cap.stdout.splitlines()]
+    events = [s["event"] for s in status]
+    assert events[-1] == "stop" and "hold" in events and "calibration" in events
+    poses = [s["orientations"] for s in status]
+    assert poses == sorted(poses) and poses[-1] >= 12
+    assert {s["state"] for s in status} <= {"waiting", "still", "moving"}
+    assert status[-1]["calibration"]["met"] and status[-1]["calibration"]["ratio"] <= 1
+    assert all(s["next_pose"].endswith(" up") or "covered" in s["next_pose"] for s in status)
     # Stopped before the stream's end, with most poses still to come.
     rows = _rows(out / "session.csv")
     assert 20 * 100 < rows < 0.8 * len(session.t_acc)
@@ -89,18 +100,23 @@ def _free_port(kind: int) -> int:
         return s.getsockname()[1]
 
 
-def test_tcp(tmp_path, truth):
+def test_tcp_through_the_command_line(tmp_path, truth, capsys):
     port = _free_port(socket.SOCK_STREAM)
     synth = _synth(tmp_path, f"tcp://127.0.0.1:{port}", stdout=subprocess.DEVNULL)
+    out = tmp_path / "D"
     try:
-        report = capture(TcpSource("127.0.0.1", port, connect_timeout=30), tmp_path / "D",
-                         PRESETS["default"], until=60)
+        rc = main(["capture", f"tcp://127.0.0.1:{port}", "--out", str(out), "--no-view",
+                   "--until", "60"])
     finally:
         synth.kill()
         synth.wait()
-    assert report.stopped == "targets met" and report.garbled == 0
-    assert report.samples == _rows(report.session) < 0.8 * len(truth[0].t_acc)
-    _within_truth(report.session, truth[1])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    # The guide as plain lines: holds, the pose to hold next, the running fits.
+    assert "next hold with" in text and "calibration so far: good" in text
+    assert "stopped: targets met" in text and "wrote " + str(out / "calib.json") in text
+    assert _rows(out / "session.csv") < 0.8 * len(truth[0].t_acc)
+    _within_truth(out / "session.csv", truth[1])
 
 
 def test_udp(tmp_path, truth):
