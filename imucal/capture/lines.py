@@ -17,6 +17,13 @@ from imucal.errors import ImucalError
 from imucal.io.column_names import AXES, classify_name
 from imucal.io.units import TIME_UNITS
 
+# MotionCal's lines (the PJRC/Adafruit calibration sketches): "Raw:" integer counts of the
+# accelerometer (8192 per g), gyroscope (16 per deg/s) and magnetometer (0.1 uT), "Uni:" the
+# same in m/s^2, rad/s and uT; nine numbers, no time (--rate numbers the samples).
+MOTIONCAL = {"Raw:": ["ax (counts)", "ay (counts)", "az (counts)", "gx (counts)",
+                      "gy (counts)", "gz (counts)", "mx (counts)", "my (counts)", "mz (counts)"],
+             "Uni:": ["ax (m/s^2)", "ay (m/s^2)", "az (m/s^2)", "gx (rad/s)", "gy (rad/s)",
+                      "gz (rad/s)", "mx (uT)", "my (uT)", "mz (uT)"]}
 PREVIEW_BYTES = 160  # what the "no valid data" message quotes of what came
 MAX_LINE = 4096  # a "line" longer than this without a newline is noise (a wrong baud rate)
 
@@ -110,6 +117,7 @@ class LineParser:
         self.preview = b""
         self.last_t = -np.inf
         self.numbered = 0  # samples numbered by --rate so far
+        self.prefix: str | None = None  # "Raw:" or "Uni:" once a MotionCal line came
         self.time_scale: float | None = None
 
     def _with_time(self, layout: Layout) -> Layout:
@@ -143,6 +151,8 @@ class LineParser:
         text = buf[:cut].decode("ascii", errors="replace")
         lines = [ln.strip() for ln in text.split("\n")]
         lines = [ln for ln in lines if ln]
+        if self.layout is None or self.prefix is not None:
+            lines = self._motioncal(lines)
         if self.layout is None:
             lines = self._find_header(lines)
         elif self.layout.delimiter == "?" and lines:
@@ -150,6 +160,19 @@ class LineParser:
         if not lines or self.layout is None:
             return None
         return self._rows(lines)
+
+    def _motioncal(self, lines: list[str]) -> list[str]:
+        """MotionCal's lines without their prefix (the other prefix's lines are garbled: one
+        stream, one unit)."""
+        if self.prefix is None:
+            first = next((ln[:4] for ln in lines if ln[:4] in MOTIONCAL), None)
+            if first is None:
+                return lines
+            self.prefix = first
+            self.layout = self._with_time(layout_of(MOTIONCAL[first], ",", self.source))
+        kept = [ln[4:] for ln in lines if ln.startswith(self.prefix)]
+        self.garbled += len(lines) - len(kept)
+        return kept
 
     def _find_header(self, lines: list[str]) -> list[str]:
         for i, line in enumerate(lines):

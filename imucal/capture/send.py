@@ -22,12 +22,27 @@ DATAGRAM = 1400  # bytes of whole lines per UDP datagram: under an Ethernet MTU
 ACCEPT_S = 30.0  # how long a TCP stream waits for its client
 
 
-def session_lines(session: Session) -> tuple[str, list[str]]:
-    """The header and the sample lines (the gyroscope at the accelerometer's times)."""
+FORMATS = ("lines", "motioncal")
+# MotionCal's "Raw:" counts (imucal.capture.lines.MOTIONCAL): 8192 per g, 16 per deg/s.
+MOTIONCAL_PER_G, MOTIONCAL_PER_DEG_S = 8192.0, 16.0
+
+
+def session_lines(session: Session, fmt: str = "lines") -> tuple[str | None, list[str]]:
+    """The header (None for MotionCal's lines, which have none) and the sample lines (the
+    gyroscope at the accelerometer's times): ``t,ax,ay,az,gx,gy,gz`` numbers that round-trip,
+    or MotionCal's ``Raw:`` integer counts (no magnetometer here: zeros)."""
     if not session.has_gyro or not np.array_equal(session.t_acc, session.t_gyro):
         raise ImucalError("a stream carries the gyroscope at the accelerometer's times",
                           source="--stream")
     buf = io.StringIO()
+    if fmt == "motioncal":
+        if session.acc_unit != "g" or session.gyro_unit != "rad/s":
+            raise ImucalError("MotionCal's lines are made from g and rad/s", source="--format")
+        counts = np.column_stack([session.acc * MOTIONCAL_PER_G,
+                                  np.rad2deg(session.gyro) * MOTIONCAL_PER_DEG_S,
+                                  np.zeros((len(session.acc), 3))])
+        np.savetxt(buf, np.round(counts), fmt="%d", delimiter=",")
+        return None, ["Raw:" + line for line in buf.getvalue().splitlines()]
     np.savetxt(buf, np.column_stack([session.t_acc, session.acc, session.gyro]), fmt="%.17g",
                delimiter=",")
     return "t,ax,ay,az,gx,gy,gz", buf.getvalue().splitlines()
@@ -51,19 +66,22 @@ def paced(t: np.ndarray, lines: list[str], speed: float | None, send: Callable[[
         time.sleep(TICK_S)
 
 
-def stream_session(session: Session, target: str, speed: float | None,
+def stream_session(session: Session, target: str, speed: float | None, fmt: str = "lines",
                    on_ready: Callable[[str], None] | None = None) -> None:
     """Send ``session`` to ``target``: ``-``, ``tcp://HOST:PORT`` or ``udp://HOST:PORT``."""
-    header, lines = session_lines(session)
+    header, lines = session_lines(session, fmt)
+    head = [] if header is None else [header]
     t = session.t_acc
     if target == "-":
         out = sys.stdout.buffer
 
         def send(chunk: list[str]) -> None:
+            if not chunk:
+                return
             out.write(("\n".join(chunk) + "\n").encode())
             out.flush()
 
-        send([header])
+        send(head)
         paced(t, lines, speed, send)
         return
     scheme, _, rest = target.partition("://")
@@ -83,7 +101,7 @@ def stream_session(session: Session, target: str, speed: float | None,
                 def send_tcp(chunk: list[str]) -> None:
                     conn.sendall(("\n".join(chunk) + "\n").encode())
 
-                send_tcp([header])
+                send_tcp(head)
                 paced(t, lines, speed, send_tcp)
         return
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
@@ -101,5 +119,5 @@ def stream_session(session: Session, target: str, speed: float | None,
             if packet:
                 sock.sendto(("\n".join(packet) + "\n").encode(), address)
 
-        send_udp([header])
+        send_udp(head)
         paced(t, lines, speed, send_udp)

@@ -17,6 +17,7 @@ from imucal.cli.options import (
     SETTING_OPTIONS,
     SessionArg,
     VerboseOpt,
+    _one_of,
     at_least,
     build_settings,
     choice,
@@ -293,6 +294,11 @@ def synth(
     speed: Annotated[float | None, typer.Option(
         "--speed", metavar="X", callback=positive, show_default=False,
         help="With --stream: X times faster than real time [default: real time].")] = None,
+    stream_format: Annotated[str, typer.Option(
+        "--format", metavar="lines|motioncal",
+        callback=_one_of("lines", "motioncal"),
+        help="With --stream: lines of t,ax,ay,az,gx,gy,gz, or MotionCal's Raw: lines "
+             "(counts, no time: capture them with --rate).")] = "lines",
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
@@ -340,7 +346,7 @@ def synth(
     if stream is not None:
         from imucal.capture.send import stream_session
 
-        stream_session(sess, stream, 1.0 if speed is None else speed)
+        stream_session(sess, stream, 1.0 if speed is None else speed, stream_format)
 
 
 @app.command()

@@ -57,3 +57,17 @@ def test_numbers_without_header_say_columns():
     p = LineParser("serial:/dev/x?baud=9600")
     assert p.feed(b"1,2,3\n4,5,6\n") is None
     assert p.valid == 0 and "--columns" in p.said() and "12 bytes" in p.said()
+
+
+def test_motioncal_raw_lines():
+    p = LineParser("serial:/dev/ttyACM0?baud=115200", rate=100.0)
+    b = p.feed(b"hello\nRaw:10,-20,8192,16,0,-32,300,-12,450\nUni:0.1,0,9.8,0,0,0,3,1,4\r\n"
+               b"Raw:11,-21,8190,15,1,-33,301,-11,451\n")
+    assert p.header[:2] == ["t", "ax (counts)"] and len(p.header) == 10
+    np.testing.assert_array_equal(b.t, [0.0, 0.01])
+    np.testing.assert_array_equal(b.acc, [[10, -20, 8192], [11, -21, 8190]])
+    np.testing.assert_array_equal(b.gyro[:, 2], [-32, -33])
+    assert b.text[0] == "0.0,10,-20,8192,16,0,-32,300,-12,450"
+    assert p.garbled == 2  # the banner before the first MotionCal line, and the Uni: line
+    with pytest.raises(ImucalError, match="--rate"):
+        LineParser("x").feed(b"Uni:0.1,0,9.8,0,0,0,3,1,4\n")

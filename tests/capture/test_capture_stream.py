@@ -221,3 +221,25 @@ def test_sigkill_leaves_every_flushed_sample(tmp_path, truth):
     assert len(sess.t_acc) == first + 1000
     np.testing.assert_array_equal(sess.acc, session.acc[:first + 1000])
     assert imucal.calibrate(sess).verdict.usable
+
+
+def test_motioncal_raw_lines_over_udp(tmp_path, truth):
+    source = UdpSource("127.0.0.1", 0)
+    synth = subprocess.Popen(
+        CLI + ["synth", str(tmp_path / "s.mat"), "--poses", str(POSES), "--seed", str(SEED),
+               "--stream", f"udp://127.0.0.1:{source.port}", "--speed", "50", "--format",
+               "motioncal"], env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        report = capture(source, tmp_path / "D", PRESETS["default"], rate=100.0, until=60)
+    finally:
+        synth.kill()
+        synth.wait()
+    assert report.stopped == "targets met" and report.garbled == 0
+    head = report.session.read_text().splitlines()[:2]
+    assert head[0].startswith("t,ax (counts),") and head[1].startswith("0.0,")
+    # Counts of 8192 per g and 16 per deg/s: the misalignments do not depend on the unit.
+    result = imucal.calibrate(imucal.load_session(report.session))
+    seg = result.segments[0]
+    za = (acc_theta(seg.acc.model)[:3] - acc_theta(truth[1].acc)[:3]) / seg.acc.std[:3]
+    assert np.abs(za).max() < 4 and result.session.acc_unit == "counts"
+    np.testing.assert_allclose(seg.acc.model.K * 8192, truth[1].acc.K, rtol=2e-3)
