@@ -156,7 +156,8 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
         final = None
     last = final if final is not None else last
     emit("stop")
-    return CaptureReport(session=writer.path, samples=writer.rows, garbled=parser.garbled,
+    return CaptureReport(session=writer.path, samples=writer.rows,
+                         garbled=parser.garbled + getattr(source, "garbled", 0),
                          stopped=stopped, progress=last, calibrations=fits,
                          holds=st.holds, orientations=st.orientations,
                          duration_s=duration, write_error=writer.error, final=final)

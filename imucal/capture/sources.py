@@ -1,5 +1,6 @@
 """Where a capture's bytes come from: ``-`` (standard input), ``tcp://HOST:PORT`` (connect),
-``udp://[HOST]:PORT`` (listen), ``serial:/dev/ttyX?baud=N`` (pyserial, imported only then).
+``udp://[HOST]:PORT`` (listen), ``serial:/dev/ttyX?baud=N`` (pyserial, imported only then),
+``mavlink:...`` (pymavlink, :mod:`imucal.capture.mavlink`).
 
 Every source is read the same way: :meth:`Source.read` waits at most ``timeout`` seconds and
 returns the bytes that came (``b""`` when none did), or None once the stream has ended (end of
@@ -153,6 +154,10 @@ def open_source(spec: str) -> Source:
     """The source a capture's SOURCE argument names (see the module's docstring)."""
     if spec == "-":
         return FdSource(0)
+    if spec.startswith("mavlink:"):
+        from imucal.capture.mavlink import MavlinkSource
+
+        return MavlinkSource(spec)
     if spec.startswith("serial:"):
         parts = urlsplit(spec[len("serial:"):])
         query = parse_qs(parts.query)
@@ -170,8 +175,9 @@ def open_source(spec: str) -> Source:
             if cls is TcpSource and not host:
                 raise ImucalError("expected tcp://HOST:PORT (a host to connect to)", source=spec)
             return cls(host, port)
-    raise ImucalError("unknown source: expected -, tcp://HOST:PORT, udp://[HOST]:PORT or "
-                      "serial:/dev/ttyX?baud=N", source=spec)
+    raise ImucalError("unknown source: expected -, tcp://HOST:PORT, udp://[HOST]:PORT, "
+                      "serial:/dev/ttyX?baud=N, mavlink:udp:HOST:PORT or mavlink:/dev/ttyX",
+                      source=spec)
 
 
 def _host_port(spec: str, scheme: str) -> tuple[str, int]:

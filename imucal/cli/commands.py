@@ -295,10 +295,10 @@ def synth(
         "--speed", metavar="X", callback=positive, show_default=False,
         help="With --stream: X times faster than real time [default: real time].")] = None,
     stream_format: Annotated[str, typer.Option(
-        "--format", metavar="lines|motioncal",
-        callback=_one_of("lines", "motioncal"),
-        help="With --stream: lines of t,ax,ay,az,gx,gy,gz, or MotionCal's Raw: lines "
-             "(counts, no time: capture them with --rate).")] = "lines",
+        "--format", metavar="lines|motioncal|mavlink",
+        callback=_one_of("lines", "motioncal", "mavlink"),
+        help="With --stream: lines of t,ax,ay,az,gx,gy,gz, MotionCal's Raw: lines (counts, no "
+             "time: capture them with --rate), or MAVLink HIGHRES_IMU messages.")] = "lines",
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
