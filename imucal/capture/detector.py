@@ -141,7 +141,7 @@ class StillDetector:
         self.run_start, self.run_n = None, 0
 
     def _poses(self) -> None:
-        up = np.array([h.mean for h in self.holds])
+        up = centred(np.array([h.mean for h in self.holds]))
         self.orientations = distinct_orientations(up)
         missing, self.covered = coverage(up)
         suggested = suggest_poses(missing, limit=1)
@@ -158,6 +158,32 @@ class StillDetector:
         return DetectorState(state=state, hold_s=hold, holds=len(self.holds),
                              orientations=self.orientations, coverage=self.covered,
                              next_pose=self.next_pose)
+
+
+def centred(means: np.ndarray) -> np.ndarray:
+    """The holds' means about the sphere they lie on, where they determine one.
+
+    Raw counts sit on a sphere whose centre is the zero offset (32768 counts for many ADCs):
+    about the origin every pose would point the same way. The centre is the least-squares
+    sphere through the means (``|m - c|^2 = r^2``, linear in ``c`` and ``r^2 - |c|^2``), taken
+    only when the means determine it (a well-conditioned system) and lie on it (radii within
+    5 %); otherwise the means are taken as they are (a sensor in g or m/s^2, whose offset is
+    small beside |g|)."""
+    if len(means) < 5:
+        return means
+    m0 = means.mean(axis=0)
+    spread = float(np.abs(means - m0).max())
+    if spread == 0.0:
+        return means
+    x = (means - m0) / spread
+    a = np.column_stack([2 * x, np.ones(len(x))])
+    if np.linalg.cond(a) > 30:
+        return means
+    sol = np.linalg.lstsq(a, (x * x).sum(axis=1), rcond=None)[0]
+    radii = np.linalg.norm(x - sol[:3], axis=1)
+    if radii.std() > 0.05 * radii.mean():
+        return means
+    return means - (m0 + spread * sol[:3])
 
 
 def guide_line(st: DetectorState) -> str:

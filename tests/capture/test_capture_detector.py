@@ -3,7 +3,7 @@ still, the same holds whatever the batch sizes, and the pose to hold next."""
 
 import numpy as np
 
-from imucal.capture.detector import StillDetector
+from imucal.capture.detector import StillDetector, centred
 from imucal.synth import make_session
 
 
@@ -50,3 +50,15 @@ def test_next_pose_names_an_uncovered_axis():
     v = v / np.linalg.norm(v)
     up = np.array([h.mean / np.linalg.norm(h.mean) for h in det.holds])
     assert np.max(up @ v) < np.cos(np.radians(30))
+
+
+def test_raw_counts_count_their_poses_about_the_zero_offset():
+    # 4096 counts per g about 32768: about the origin every pose points the same way.
+    g, _ = make_session(poses=14, seed=2)
+    counts, _ = make_session(poses=14, seed=2, acc_unit="counts")
+    det_g, _ = _holds(g, [50])
+    det_c, _ = _holds(counts, [50])
+    assert det_c.orientations == det_g.orientations >= 11
+    means = np.array([h.mean for h in det_c.holds])
+    np.testing.assert_allclose(centred(means) + 32768, means, atol=0.1 * 4096)
+    assert np.all(np.abs(np.linalg.norm(centred(means), axis=1) / 4096 - 1) < 0.1)

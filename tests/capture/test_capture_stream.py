@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 import imucal
-from imucal.capture.run import capture
-from imucal.capture.send import session_lines
-from imucal.capture.sources import SerialSource, UdpSource, open_source
-from imucal.capture.stop import PRESETS
+from imucal.capture.run import calibrate_file, capture
+from imucal.capture.send import frames_of, session_lines
+from imucal.capture.sources import FdSource, SerialSource, UdpSource, open_source
+from imucal.capture.stop import PRESETS, Targets
 from imucal.cli.main import main
 from imucal.errors import ImucalError
 from imucal.models import acc_theta, gyro_theta
@@ -264,3 +264,32 @@ def test_mavlink_highres_imu_over_udp(tmp_path, truth):
     assert report.session.read_text().splitlines()[0].startswith("t (us),ax (m/s^2),")
     result = _within_truth(report.session, truth[1], g=STANDARD_GRAVITY)
     assert result.session.acc_unit == "m/s^2"
+
+
+def test_a_real_recording_replayed_calibrates_as_the_file(tmp_path, shared_data):
+    """The Xsens pair (raw counts, two files) sent as lines gives the file's calibration."""
+    d = shared_data / "imu_tk_xsens"
+    session = imucal.load_session(d / "xsens_acc.mat", gyro_path=d / "xsens_gyro.mat")
+    head, frames = frames_of(session, "lines")
+    r, w = os.pipe()
+
+    def feed() -> None:
+        with os.fdopen(w, "wb") as f:
+            f.write(b"".join(head + frames))
+
+    feeder = threading.Thread(target=feed)
+    feeder.start()
+    # Targets no run meets: the capture reads to the end of the stream.
+    report = capture(FdSource(r), tmp_path / "D", Targets(1e-9, 1e-9, 1e-9))
+    feeder.join()
+    assert report.stopped == "end of stream" and report.samples == len(session.t_acc)
+    assert report.orientations >= 9  # about the counts' zero offset, not the origin
+    live = calibrate_file(report.session)
+    batch = imucal.calibrate(session)
+    assert len(live.segments) == len(batch.segments)
+    for a, b in zip(live.segments, batch.segments):
+        for fa, fb in ((a.acc, b.acc), (a.gyro, b.gyro)):
+            np.testing.assert_array_equal(fa.model.T, fb.model.T)
+            np.testing.assert_array_equal(fa.model.K, fb.model.K)
+            np.testing.assert_array_equal(fa.model.b, fb.model.b)
+    assert live.verdict.level == batch.verdict.level
