@@ -8,12 +8,21 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from imucal.cli.commands import app, calibrate
-from imucal.cli.options import INPUT_OPTIONS, SETTING_OPTIONS, positive
+from imucal.cli.options import (
+    INPUT_OPTIONS,
+    SETTING_OPTIONS,
+    SessionArg,
+    _one_of,
+    load_kwargs,
+    pick,
+    positive,
+    shared_options,
+)
 
 _TARGETS = "quick, default or factory"
 
@@ -111,3 +120,36 @@ def capture_cmd(
     if not report.passed:
         print(f"targets not met ({goal.text()}): fail", file=out_stream)
     return 0 if report.passed else 1
+
+
+@app.command("replay")
+@shared_options(INPUT_OPTIONS)
+def replay_cmd(
+    session: SessionArg,
+    stream: Annotated[str, typer.Option(
+        "--stream", metavar="-|tcp://HOST:PORT|udp://HOST:PORT", show_default=False,
+        help="Where to send it: standard output, one TCP client (listening on HOST:PORT) or "
+             "UDP datagrams.")],
+    speed: Annotated[float | None, typer.Option(
+        "--speed", metavar="X", callback=positive, show_default=False,
+        help="X times faster than real time [default: real time].")] = None,
+    stream_format: Annotated[str, typer.Option(
+        "--format", metavar="lines|motioncal|mavlink",
+        callback=_one_of("lines", "motioncal", "mavlink"),
+        help="Lines of t,ax,ay,az,gx,gy,gz, MotionCal's Raw: lines or MAVLink HIGHRES_IMU.")
+    ] = "lines",
+    options: dict[str, Any] = None,  # INPUT_OPTIONS
+) -> None:
+    """Send a recording as a device would, for 'imucal capture' (e.g. `imucal replay rec.csv
+    --stream - --speed 20 | imucal capture - --out D`): the samples as read, in real time or
+    --speed times faster."""
+    import imucal
+    from imucal.capture.send import stream_session
+    from imucal.cli.outputs import check_inputs
+
+    load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
+    check_inputs([session, load_kw["gyro_path"]])
+    sess = imucal.load_session(session, **load_kw)
+    print(f"replaying {session}: {len(sess.t_acc)} samples, {sess.duration:.1f} s",
+          file=sys.stderr, flush=True)
+    stream_session(sess, stream, 1.0 if speed is None else speed, stream_format)
