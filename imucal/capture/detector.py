@@ -49,6 +49,10 @@ class DetectorState:
     coverage: float  # fraction of the sphere within 45 degrees of a pose
     next_pose: str  # the axis to point up next, in words
     new_holds: list[Hold] = field(default_factory=list)  # the holds this batch completed
+    up: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (H, 3) each hold's
+    #   unit direction that was up, about the centre (see centred)
+    gravity: np.ndarray | None = None  # (3,) the last sample's unit direction, same centre
+    next_up: np.ndarray | None = None  # (3,) the pose advised next, a unit direction
 
 
 class StillDetector:
@@ -69,6 +73,10 @@ class StillDetector:
         self.orientations = 0
         self.covered = 0.0
         self.next_pose = "any axis up"
+        self.centre = np.zeros(3)  # the zero the holds' means are taken about
+        self.up = np.zeros((0, 3))
+        self.next_up: np.ndarray | None = None
+        self.last = np.zeros(3)  # the last sample's raw acceleration
 
     def feed(self, t: np.ndarray, acc: np.ndarray) -> DetectorState:
         """Take a batch (times in s, raw acceleration (N, 3)); the guide after it."""
@@ -99,6 +107,7 @@ class StillDetector:
                          still)
         if new:
             self._poses()
+        self.last = np.asarray(acc[-1], dtype=np.float64)
         st = self._state(bool(still[-1]))
         st.new_holds = new
         return st
@@ -141,10 +150,14 @@ class StillDetector:
         self.run_start, self.run_n = None, 0
 
     def _poses(self) -> None:
-        up = centred(np.array([h.mean for h in self.holds]))
+        means = np.array([h.mean for h in self.holds])
+        up = centred(means)
+        self.centre = means[0] - up[0]
+        self.up = up / np.linalg.norm(up, axis=1, keepdims=True)
         self.orientations = distinct_orientations(up)
         missing, self.covered = coverage(up)
         suggested = suggest_poses(missing, limit=1)
+        self.next_up = suggested[0] if len(suggested) else None
         self.next_pose = (f"{axis_words(suggested[0])} up" if len(suggested)
                           else "any new pose (the sphere is covered)")
 
@@ -155,9 +168,12 @@ class StillDetector:
             state, hold = "still", self.t_last - self.run_start
         else:
             state, hold = "moving", 0.0
+        g = self.last - self.centre
+        norm = float(np.linalg.norm(g))
         return DetectorState(state=state, hold_s=hold, holds=len(self.holds),
                              orientations=self.orientations, coverage=self.covered,
-                             next_pose=self.next_pose)
+                             next_pose=self.next_pose, up=self.up,
+                             gravity=g / norm if norm > 0 else None, next_up=self.next_up)
 
 
 def centred(means: np.ndarray) -> np.ndarray:

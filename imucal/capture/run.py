@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from imucal.capture.detector import DetectorState, StillDetector, guide_line
-from imucal.capture.lines import LineParser
+from imucal.capture.lines import Batch, LineParser
 from imucal.capture.sources import Source
 from imucal.capture.stop import Progress, Targets, progress
 from imucal.capture.writer import SESSION_NAME, SessionWriter
@@ -76,9 +76,11 @@ def calibrate_file(path: Path, writer: SessionWriter | None = None):
 def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | None = None,
             rate: float | None = None, until: float | None = None,
             on_status: Callable[[dict], None] | None = None,
+            on_batch: Callable[[Batch, DetectorState], None] | None = None,
             no_data_s: float = NO_DATA_S) -> CaptureReport:
     """Capture ``source`` into ``out``/session.csv until the calibration meets ``goal`` (see the
-    module's docstring); ``on_status`` gets the guide as a dict (:func:`status`)."""
+    module's docstring); ``on_status`` gets the guide as a dict (:func:`status`), ``on_batch``
+    each batch of samples with the detector's state after it (the live view)."""
     out = Path(out)
     if (out / SESSION_NAME).exists():
         raise ImucalError("a capture is already there; give another --out directory",
@@ -116,6 +118,8 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
                 writer.add(batch.text)
                 state = st.state
                 st = det.feed(batch.t, batch.acc)
+                if on_batch is not None:
+                    on_batch(batch, st)
                 if st.new_holds:
                     want_fit = True
                     emit("hold")

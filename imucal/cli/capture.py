@@ -67,7 +67,8 @@ def capture_cmd(
         "--json-status", help="The guide as one JSON object a line on standard output (for a "
                               "factory script), instead of text.")] = False,
     rrd: Annotated[str | None, typer.Option(
-        "--rrd", metavar="RUN.rrd", help="Also save a Rerun recording of the calibration.")
+        "--rrd", metavar="CAPTURE.rrd", help="Save the live view's Rerun recording (the "
+                                              "signals, holds, poses and fits as they came).")
     ] = None,
 ) -> int:
     """Capture a device's stream and calibrate it while you record: the guide says which pose
@@ -86,7 +87,11 @@ def capture_cmd(
     goal = targets(target)
     src = open_source(source)
 
+    live = _live_view(no_view, rrd)
+
     def on_status(st: dict) -> None:
+        if live is not None:
+            live.status(st)
         if json_status:
             line = json.dumps(st)
         elif st["event"] in ("hold", "state", "tick", "calibration"):
@@ -99,12 +104,12 @@ def capture_cmd(
             return
         print(line, flush=True)
 
-    if not no_view:
-        # The live view (viewer/) is not written yet: the guide goes to the terminal.
-        print("live view not available yet: the guide follows as text (--no-view hides "
-              "this line)", file=sys.stderr)
-    report = capture(src, out, goal, columns=columns, rate=rate, until=until,
-                     on_status=on_status)
+    try:
+        report = capture(src, out, goal, columns=columns, rate=rate, until=until,
+                         on_status=on_status, on_batch=None if live is None else live.batch)
+    finally:
+        if live is not None:
+            live.close()
     out_stream = sys.stderr if json_status else sys.stdout
     print("\n".join(report.lines()), file=out_stream, flush=True)
     options = {name: default for name, _, default in INPUT_OPTIONS + SETTING_OPTIONS}
@@ -113,13 +118,42 @@ def capture_cmd(
         if json_status:
             sys.stdout = sys.stderr  # the summary stays off the JSON lines
         calibrate.__wrapped__(session=report.session, out=str(Path(out) / "calib.json"),
-                              rrd=rrd, calibrated=None, allow_poor=False, spec=None,
+                              rrd=None, calibrated=None, allow_poor=False, spec=None,
                               options=options, verbose=False)
     finally:
         sys.stdout = saved
     if not report.passed:
         print(f"targets not met ({goal.text()}): fail", file=out_stream)
     return 0 if report.passed else 1
+
+
+def _live_view(no_view: bool, rrd: str | None):
+    """The live view: saved to ``rrd`` when given, else shown in the native viewer where there
+    is a display; None for --no-view without --rrd, or without a display (said in one line)."""
+    import os
+
+    display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    if rrd is None and (no_view or not display):
+        if not no_view:
+            print("no display (neither DISPLAY nor WAYLAND_DISPLAY is set): the guide is "
+                  "printed; --rrd FILE saves the live view", file=sys.stderr)
+        return None
+    from imucal.capture.detector import MIN_HOLD_S
+    from imucal.cli.outputs import viewer_available
+
+    with viewer_available():
+        from viewer.live import LiveView, blueprint
+    live = LiveView.new(MIN_HOLD_S)
+    if rrd is not None:
+        live.rec.save(rrd, default_blueprint=blueprint())
+    else:
+        import socket
+
+        with socket.socket() as s:  # a free port: never hand the capture to another viewer
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        live.rec.spawn(port=port, default_blueprint=blueprint())
+    return live
 
 
 @app.command("replay")

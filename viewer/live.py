@@ -1,0 +1,122 @@
+"""The live view of ``imucal capture`` (issue 25, item 2): the signals scrolling, the detector's
+still/moving state and the hold's timer against the minimum, the sphere of poses held so far
+with the current direction of gravity and the pose to hold next, and the worst standard error
+against its target shrinking as holds come in.
+
+The capture's core calls :meth:`LiveView.batch` with each batch and :meth:`LiveView.status`
+with each status; rows are sent at most every ``SEND_S`` seconds (10 Hz), a batch of columns
+per entity, so the view costs a few calls a second whatever the sample rate.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from .paths import APPLICATION_ID
+
+SEND_S = 0.1  # the view is updated at 10 Hz
+ACC, GYRO, STILL, HOLD = "live/accelerometer", "live/gyroscope", "live/still", "live/hold"
+POSES, RATIO = "live/orientations", "live/worst_over_target"
+SPHERE_POSES, SPHERE_NOW, SPHERE_NEXT = "sphere/poses", "sphere/gravity", "sphere/next"
+SPHERE_AXES, GUIDE = "sphere/axes", "guide"
+XYZ = [[230, 80, 80], [80, 200, 80], [80, 120, 240]]
+
+
+def blueprint() -> rrb.Blueprint:
+    def series(name: str, path: str) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(name=name, origin="/", contents=[path])
+
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Vertical(series("Accelerometer (raw)", ACC), series("Gyroscope (raw)", GYRO),
+                     rrb.TimeSeriesView(name="Still, hold (s)", origin="/",
+                                        contents=[STILL, HOLD]),
+                     rrb.TimeSeriesView(name="Poses; worst standard error / target",
+                                        origin="/", contents=[POSES, RATIO])),
+        rrb.Vertical(rrb.Spatial3DView(name="Poses held (the axis that was up)",
+                                       origin="/sphere"),
+                     rrb.TextDocumentView(name="Guide", origin="/guide"),
+                     row_shares=[3, 1]),
+        column_shares=[3, 2]), collapse_panels=True)
+
+
+class LiveView:
+    """A capture's recording; ``rec`` is connected (a viewer) or saving (a file)."""
+
+    def __init__(self, rec: rr.RecordingStream, min_hold_s: float) -> None:
+        self.rec, self.min_hold_s = rec, min_hold_s
+        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]] = []
+        self.last_send = 0.0
+        self.t = 0.0
+        self.state = None
+        rec.log(ACC, rr.SeriesLines(names=["x", "y", "z"], colors=XYZ), static=True)
+        rec.log(GYRO, rr.SeriesLines(names=["x", "y", "z"], colors=XYZ), static=True)
+        rec.log(STILL, rr.SeriesLines(names="still"), static=True)
+        rec.log(HOLD, rr.SeriesLines(names=["hold", "counts from"]), static=True)
+        rec.log(SPHERE_AXES, rr.Arrows3D(vectors=np.eye(3) * 1.3, colors=XYZ,
+                                         labels=["x", "y", "z"]), static=True)
+
+    @classmethod
+    def new(cls, min_hold_s: float) -> LiveView:
+        return cls(rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4()), min_hold_s)
+
+    def batch(self, batch, st) -> None:
+        """Take a batch of samples and the detector's state after it (imucal.capture.run)."""
+        still = np.full(len(batch.t), 1.0 if st.state == "still" else 0.0)
+        self.parts.append((batch.t, batch.acc, batch.gyro, still))
+        self.t, self.state = float(batch.t[-1]), st
+        now = time.monotonic()
+        if now - self.last_send >= SEND_S:
+            self.send()
+            self.last_send = now
+
+    def send(self) -> None:
+        if not self.parts:
+            return
+        t = np.concatenate([p[0] for p in self.parts])
+        index = [rr.TimeColumn("time", duration=t)]
+        self.rec.send_columns(ACC, indexes=index, columns=rr.Scalars.columns(
+            scalars=np.vstack([p[1] for p in self.parts])))
+        if self.parts[0][2] is not None:
+            self.rec.send_columns(GYRO, indexes=index, columns=rr.Scalars.columns(
+                scalars=np.vstack([p[2] for p in self.parts])))
+        self.rec.send_columns(STILL, indexes=index, columns=rr.Scalars.columns(
+            scalars=np.concatenate([p[3] for p in self.parts])))
+        self.parts = []
+        st = self.state
+        self.rec.set_time("time", duration=self.t)
+        self.rec.log(HOLD, rr.Scalars([st.hold_s, self.min_hold_s]))
+        self.rec.log(POSES, rr.Scalars(float(st.orientations)))
+        if len(st.up):
+            self.rec.log(SPHERE_POSES, rr.Points3D(st.up, radii=0.04, colors=[90, 90, 90]))
+        if st.gravity is not None:
+            self.rec.log(SPHERE_NOW, rr.Arrows3D(vectors=[st.gravity], colors=[250, 200, 40],
+                                                 labels=["now"]))
+        if st.next_up is not None:
+            self.rec.log(SPHERE_NEXT, rr.Arrows3D(vectors=[st.next_up * 1.15],
+                                                  colors=[60, 200, 220], labels=["next"]))
+
+    def status(self, st: dict) -> None:
+        """A status of the capture (imucal.capture.run.status): the guide's text, the fit."""
+        self.rec.set_time("time", duration=self.t)
+        cal = st.get("calibration")
+        if st["event"] == "calibration" and cal is not None:
+            self.rec.log(RATIO, rr.Scalars(float(cal["ratio"])))
+        lines = [f"**{st['state']}**: {st['guide']}", "",
+                 f"- poses {st['orientations']} ({st['orientations_needed']} needed), "
+                 f"sphere covered {st['coverage'] * 100:.0f} %",
+                 f"- next: hold with {st['next_pose']}",
+                 f"- samples {st['samples']}, garbled lines {st['garbled']}"]
+        if cal is not None:
+            lines.append(f"- calibration so far: {cal['verdict']}; worst {cal['worst']} at "
+                         f"{cal['ratio']:.2f} x its target" + (" (met)" if cal["met"] else ""))
+        self.rec.log(GUIDE, rr.TextDocument("\n".join(lines),
+                                            media_type=rr.MediaType.MARKDOWN))
+
+    def close(self) -> None:
+        self.send()
+        self.rec.flush()
