@@ -26,6 +26,10 @@ from imucal.stages.guide import ORIENTATIONS_NEEDED
 NO_DATA_S = 5.0  # no valid sample this long after the start: say what came and what to check
 READ_S = 0.1  # the longest one read waits: the flush, the timer and --until stay on time
 TICK_S = 1.0  # a status line at least this often
+# The running fits take at most this share of the time: after a fit that took d seconds the
+# next waits (1 / FIT_SHARE - 1) d. An hour at 1 kHz makes a fit of the whole file last
+# seconds; without the wait they would run back to back, a whole core (issue 25: a quarter).
+FIT_SHARE = 0.2
 
 
 @dataclass
@@ -96,6 +100,7 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
     st = DetectorState("waiting", 0.0, 0, 0, 0.0, "any axis up")
     start = time.monotonic()
     last_tick = start
+    fit_started = next_fit = start
     stopped = "end of stream"
 
     def emit(event: str) -> None:
@@ -132,13 +137,17 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
                 writer.flush(wait=False)
             if future is not None and future.done():
                 last, future = _fitted(future), None
+                if fits:  # the first fit also loads the method's code: not its pace
+                    next_fit = now + (now - fit_started) * (1.0 / FIT_SHARE - 1.0)
                 fits += 1
                 emit("calibration")
                 if last is not None and last.met:
                     stopped = "targets met"
                     break
-            if want_fit and future is None and st.orientations >= ORIENTATIONS_NEEDED:
+            if (want_fit and future is None and st.orientations >= ORIENTATIONS_NEEDED
+                    and now >= next_fit):
                 writer.flush()
+                fit_started = now
                 future = pool.submit(_fit_so_far, writer, goal)
                 want_fit = False
             if now - last_tick >= TICK_S:
