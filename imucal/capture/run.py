@@ -18,7 +18,7 @@ from pathlib import Path
 from imucal.capture.detector import DetectorState, StillDetector, guide_line
 from imucal.capture.lines import Batch, LineParser
 from imucal.capture.sources import Source
-from imucal.capture.stop import Progress, Targets, progress
+from imucal.capture.stop import Judge, Progress, Targets, progress
 from imucal.capture.writer import SESSION_NAME, SessionWriter
 from imucal.errors import ImucalError, plural
 from imucal.stages.guide import ORIENTATIONS_NEEDED
@@ -37,7 +37,8 @@ class CaptureReport:
     session: Path  # DIR/session.csv
     samples: int  # valid samples written
     garbled: int  # lines counted and skipped
-    stopped: str  # "targets met", "time limit", "end of stream", "interrupted"
+    stopped: str  # "targets met", "out of the spec", "time limit", "end of stream",
+    #               "interrupted"
     progress: Progress | None  # the last running calibration's, None if none ran
     calibrations: int  # running calibrations done
     holds: int
@@ -81,10 +82,11 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
             rate: float | None = None, until: float | None = None,
             on_status: Callable[[dict], None] | None = None,
             on_batch: Callable[[Batch, DetectorState], None] | None = None,
-            no_data_s: float = NO_DATA_S) -> CaptureReport:
+            judge: Judge | None = None, no_data_s: float = NO_DATA_S) -> CaptureReport:
     """Capture ``source`` into ``out``/session.csv until the calibration meets ``goal`` (see the
     module's docstring); ``on_status`` gets the guide as a dict (:func:`status`), ``on_batch``
-    each batch of samples with the detector's state after it (the live view)."""
+    each batch of samples with the detector's state after it (the live view), ``judge`` a
+    result's broken limits (a spec: :mod:`imucal.capture.stop`)."""
     out = Path(out)
     if (out / SESSION_NAME).exists():
         raise ImucalError("a capture is already there; give another --out directory",
@@ -144,11 +146,14 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
                 if last is not None and last.met:
                     stopped = "targets met"
                     break
+                if last is not None and last.failed:
+                    stopped = "out of the spec"
+                    break
             if (want_fit and future is None and st.orientations >= ORIENTATIONS_NEEDED
                     and now >= next_fit):
                 writer.flush()
                 fit_started = now
-                future = pool.submit(_fit_so_far, writer, goal)
+                future = pool.submit(_fit_so_far, writer, goal, judge)
                 want_fit = False
             if now - last_tick >= TICK_S:
                 last_tick = now
@@ -164,7 +169,7 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
         raise _no_data(source, parser, time.monotonic() - start)
     duration = time.monotonic() - start
     try:  # the pass/fail is the whole file's, not the last running fit's
-        final = progress(calibrate_file(writer.path), goal)
+        final = progress(calibrate_file(writer.path), goal, judge)
     except ImucalError:
         final = None
     last = final if final is not None else last
@@ -176,8 +181,8 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
                          duration_s=duration, write_error=writer.error, final=final)
 
 
-def _fit_so_far(writer: SessionWriter, goal: Targets) -> Progress:
-    return progress(calibrate_file(writer.path, writer), goal)
+def _fit_so_far(writer: SessionWriter, goal: Targets, judge: Judge | None) -> Progress:
+    return progress(calibrate_file(writer.path, writer), goal, judge)
 
 
 def _fitted(future: Future) -> Progress | None:

@@ -1,6 +1,10 @@
 """When a capture has enough: the run is judged good and every accelerometer and gyroscope
 parameter's standard error is under its target (method.md §8).
 
+With a spec (the batch's limits file, checked by the caller's ``judge``), enough is also
+"within its limits", and a calibration known to the targets but out of a limit can no longer
+pass: the capture stops there, failed.
+
 The targets are in the units a user reads: misalignment in mrad, scale factor relative to
 itself in %, accelerometer bias in mg (the raw bias's error times the scale, over |g|). The
 presets were measured on synthetic sessions at the default noise (3 mg, 3 mrad/s): "default" is
@@ -9,6 +13,7 @@ reached at about 20 poses of 3 s, "factory" at about 40, "quick" at about 12.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,15 +54,27 @@ class Progress:
     level: str  # the verdict's level ("" when the run gave none)
     worst: str  # the parameter furthest from its target ("segment 1 accelerometer s_x")
     ratio: float  # its standard error over its target (<= 1: every target met)
-    met: bool  # the verdict is good and every ratio <= 1
+    met: bool  # the verdict is good, every ratio <= 1 and no limit of a spec broken
+    firm: bool = False  # every ratio <= 1: the parameters are known to the targets
+    broken: tuple[str, ...] = ()  # the limits of a spec (--spec) the calibration breaks
+
+    @property
+    def failed(self) -> bool:
+        """Known to the targets and out of the spec's limits: it can no longer pass."""
+        return self.firm and bool(self.broken)
 
     def text(self) -> str:
+        spec = f"; out of the spec: {', '.join(self.broken)}" if self.broken else ""
         return (f"{self.level or 'no verdict'}; worst {self.worst} at "
-                f"{self.ratio:.2f} x its target")
+                f"{self.ratio:.2f} x its target{spec}")
 
 
-def progress(result: Result, goal: Targets) -> Progress:
-    """The ratios of each standard error to its target, over every segment's fits."""
+Judge = Callable[[Result], "list[str]"]  # the limits of a spec a result breaks
+
+
+def progress(result: Result, goal: Targets, judge: Judge | None = None) -> Progress:
+    """The ratios of each standard error to its target, over every segment's fits, and the
+    limits ``judge`` (a spec's check, given by the caller) finds broken."""
     ratios: list[tuple[float, str]] = []
     mis, scale = goal.misalignment_mrad * 1e-3, goal.scale_pct * 1e-2
     for seg in result.segments:
@@ -80,5 +97,6 @@ def progress(result: Result, goal: Targets) -> Progress:
     ratio, worst = max(ratios, key=lambda p: p[0] if np.isfinite(p[0]) else np.inf)
     # A session with a gyroscope needs its fit in every segment before it can be enough.
     fitted = not result.session.has_gyro or all(s.gyro is not None for s in result.segments)
-    met = level == GOOD and fitted and bool(ratio <= 1.0)
-    return Progress(level, worst, ratio, met)
+    firm = fitted and bool(ratio <= 1.0)
+    broken = tuple(judge(result)) if judge is not None else ()
+    return Progress(level, worst, ratio, level == GOOD and firm and not broken, firm, broken)

@@ -61,6 +61,11 @@ def capture_cmd(
         "--rate", metavar="HZ", callback=positive, show_default=False,
         help="Sample rate, for a stream without a time column (the samples are numbered).")
     ] = None,
+    spec: Annotated[Path | None, typer.Option(
+        "--spec", metavar="LIMITS.toml", show_default=False,
+        help="Limits the unit must be within (as for 'imucal batch'): the capture passes when "
+             "the targets are met within them, and stops failed as soon as the parameters are "
+             "known to the targets and out of them.")] = None,
     no_view: Annotated[bool, typer.Option(
         "--no-view", help="No live viewer (scripts and tests); the guide is printed.")] = False,
     json_status: Annotated[bool, typer.Option(
@@ -85,6 +90,15 @@ def capture_cmd(
     from imucal.capture.stop import targets
 
     goal = targets(target)
+    judge = None
+    if spec is not None:
+        from imucal.fleet.spec import check, load_spec
+        from imucal.fleet.summary import result_columns
+
+        limits = load_spec(spec)  # before the capture: a bad spec is one line, nothing read
+
+        def judge(result) -> list[str]:
+            return check(limits, result_columns(result)).broken
     src = open_source(source)
 
     live = _live_view(no_view, rrd)
@@ -106,7 +120,8 @@ def capture_cmd(
 
     try:
         report = capture(src, out, goal, columns=columns, rate=rate, until=until,
-                         on_status=on_status, on_batch=None if live is None else live.batch)
+                         on_status=on_status, on_batch=None if live is None else live.batch,
+                         judge=judge)
     finally:
         if live is not None:
             live.close()
@@ -114,11 +129,11 @@ def capture_cmd(
     print("\n".join(report.lines()), file=out_stream, flush=True)
     options = {name: default for name, _, default in INPUT_OPTIONS + SETTING_OPTIONS}
     saved = sys.stdout
-    try:
+    try:  # the calibration as `imucal calibrate DIR/session.csv [--spec LIMITS]` makes it
         if json_status:
             sys.stdout = sys.stderr  # the summary stays off the JSON lines
         calibrate.__wrapped__(session=report.session, out=str(Path(out) / "calib.json"),
-                              rrd=None, calibrated=None, allow_poor=False, spec=None,
+                              rrd=None, calibrated=None, allow_poor=False, spec=spec,
                               options=options, verbose=False)
     finally:
         sys.stdout = saved
