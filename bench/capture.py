@@ -10,8 +10,9 @@ at ``--speed`` times real time by a thread of this process, to a consumer proces
    of the stream pays);
 2. the capture's core (imucal.capture.run.capture) with targets that are never met, so it reads
    the whole stream, writes session.csv, runs the live detector and a calibration of the data
-   so far after every new hold; the final calibration of the whole file is timed apart and
-   taken out.
+   so far after new holds; the final calibration of the whole file is timed apart and taken
+   out;
+3. the same with the live view (viewer/live.py) saved to a file, updated at 10 Hz.
 
 Each consumer's CPU (user + sys, every thread) is its own, from inside it; printed per sample
 and as the share of one core at the stream's rate. The machine is shared: say the load.
@@ -49,8 +50,18 @@ from imucal.capture.sources import FdSource
 from imucal.capture.stop import Targets
 import imucal
 imucal.calibrate  # the pipeline imported before the clock starts, as a running capture has it
+live = None
+if len(sys.argv) > 2:  # the live view, saved to a file (as --rrd does)
+    from imucal.capture.detector import MIN_HOLD_S
+    from viewer.live import LiveView, blueprint
+    live = LiveView.new(MIN_HOLD_S)
+    live.rec.save(sys.argv[2], default_blueprint=blueprint())
 c0 = time.process_time()
-r = capture(FdSource(0), sys.argv[1], Targets(1e-9, 1e-9, 1e-9))
+r = capture(FdSource(0), sys.argv[1], Targets(1e-9, 1e-9, 1e-9),
+            on_batch=None if live is None else live.batch,
+            on_status=None if live is None else live.status)
+if live is not None:
+    live.close()
 total = time.process_time() - c0
 c1 = time.process_time()
 try:
@@ -58,8 +69,10 @@ try:
 except imucal.ImucalError:
     pass  # too short to calibrate: the loop's cost is still measured
 final = time.process_time() - c1
+import resource
 print(json.dumps({"cpu_s": total - final, "final_s": final, "lines": r.samples,
-                  "fits": r.calibrations, "holds": r.holds}))
+                  "fits": r.calibrations, "holds": r.holds,
+                  "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
 
 
@@ -104,14 +117,17 @@ def main() -> None:
     plain = _run([PLAIN], session, args.speed)
     with tempfile.TemporaryDirectory() as tmp:
         cap = _run([CAPTURE, str(Path(tmp) / "D")], session, args.speed)
+        view = _run([CAPTURE, str(Path(tmp) / "V"), str(Path(tmp) / "v.rrd")], session,
+                    args.speed)
     assert cap["lines"] == n == plain["lines"] - 1, (cap, plain, n)  # the header line
-    for name, res in (("plain read", plain), ("capture", cap)):
+    for name, res in (("plain read", plain), ("capture", cap), ("+ live view", view)):
         per = res["cpu_s"] / n
         print(f"{name:11s} {res['cpu_s']:6.2f} s CPU, {per * 1e6:6.1f} us/sample, "
               f"{per * args.rate * args.speed * 100:5.1f} % of a core at {args.rate:g} Hz x "
               f"{args.speed:g}")
     print(f"capture: {cap['holds']} holds, {cap['fits']} running calibrations; the final "
-          f"calibration of the whole file {cap['final_s']:.2f} s CPU (once, after the stop)")
+          f"calibration of the whole file {cap['final_s']:.2f} s CPU (once, after the stop); "
+          f"peak memory {cap['max_rss_mb']:.0f} MB, {view['max_rss_mb']:.0f} MB with the view")
 
 
 if __name__ == "__main__":

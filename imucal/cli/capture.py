@@ -40,7 +40,8 @@ def capture_cmd(
     source: Annotated[str, typer.Argument(
         metavar="SOURCE", show_default=False,
         help="'-' (lines on standard input), tcp://HOST:PORT (connect), udp://[HOST]:PORT "
-             "(listen) or serial:/dev/ttyX?baud=N.")],
+             "(listen), serial:/dev/ttyX?baud=N, or MAVLink: mavlink:udp:HOST:PORT (listen), "
+             "mavlink:/dev/ttyX?baud=N.")],
     out: Annotated[str, typer.Option(
         "--out", "-o", metavar="DIR", show_default=False,
         help="Directory to write session.csv (every sample as received) and calib.json.")],
@@ -81,9 +82,10 @@ def capture_cmd(
     at --until, at the end of the stream or on Ctrl-C, then calibrates DIR/session.csv with
     the full method into DIR/calib.json.
 
-    Exit 0 when the targets were met and the verdict is usable, 1 otherwise (as batch's
-    pass/fail). Nothing is lost: session.csv is written as samples arrive (at least every
-    0.5 s); garbled lines are counted and skipped.
+    Exit 0 when the whole session's calibration meets the targets (the verdict good,
+    within --spec's limits), 1 otherwise (batch's pass/fail). Nothing is lost: session.csv
+    is written as samples arrive (at least every 0.5 s); garbled lines are counted and
+    skipped.
     """
     from imucal.capture.run import capture
     from imucal.capture.sources import open_source
