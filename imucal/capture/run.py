@@ -46,6 +46,7 @@ class CaptureReport:
     duration_s: float
     write_error: str | None = None  # the OS error that stopped the writing (a full disk)
     final: Progress | None = None  # the whole session file's calibration against the targets
+    final_error: str | None = None  # why the whole session file does not calibrate
 
     @property
     def passed(self) -> bool:
@@ -59,7 +60,7 @@ class CaptureReport:
                f"running fits    {self.calibrations}"
                + (f"; last {self.progress.text()}" if self.progress is not None else ""),
                "whole session   " + (self.final.text() if self.final is not None else
-                                     "does not calibrate")]
+                                     f"does not calibrate: {self.final_error}")]
         if self.write_error:
             out.append(f"warning: writing stopped: {self.write_error}; the session holds "
                        f"the samples before it")
@@ -168,17 +169,19 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
     if parser.valid == 0:
         raise _no_data(source, parser, time.monotonic() - start)
     duration = time.monotonic() - start
+    final_error = None
     try:  # the pass/fail is the whole file's, not the last running fit's
         final = progress(calibrate_file(writer.path), goal, judge)
-    except ImucalError:
-        final = None
+    except ImucalError as e:
+        final, final_error = None, str(e)
     last = final if final is not None else last
     emit("stop")
     return CaptureReport(session=writer.path, samples=writer.rows,
                          garbled=parser.garbled + getattr(source, "garbled", 0),
                          stopped=stopped, progress=last, calibrations=fits,
                          holds=st.holds, orientations=st.orientations,
-                         duration_s=duration, write_error=writer.error, final=final)
+                         duration_s=duration, write_error=writer.error, final=final,
+                         final_error=final_error)
 
 
 def _fit_so_far(writer: SessionWriter, goal: Targets, judge: Judge | None) -> Progress:

@@ -295,3 +295,56 @@ def test_a_real_recording_replayed_calibrates_as_the_file(tmp_path, shared_data)
             np.testing.assert_array_equal(fa.model.K, fb.model.K)
             np.testing.assert_array_equal(fa.model.b, fb.model.b)
     assert live.verdict.level == batch.verdict.level
+
+
+def test_a_pulled_cable_keeps_every_sample_received(tmp_path, truth):
+    """The device's connection reset mid-stream: the capture ends there, nothing lost."""
+    session, _ = truth
+    header, lines = session_lines(session)
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    sent = 9000
+
+    def device() -> None:
+        conn, _ = server.accept()
+        conn.sendall(("\n".join([header] + lines[:sent]) + "\n").encode())
+        time.sleep(0.3)
+        # A reset, not a close: SO_LINGER 0 sends RST, as a pulled USB-serial bridge does.
+        conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+        conn.close()
+
+    dev = threading.Thread(target=device)
+    dev.start()
+    try:
+        report = capture(open_source(f"tcp://127.0.0.1:{port}"), tmp_path / "D",
+                         PRESETS["factory"], until=60)
+    finally:
+        dev.join()
+        server.close()
+    assert report.stopped == "end of stream" and report.samples == sent
+    assert report.session.read_text().splitlines()[1:] == lines[:sent]
+
+
+def test_ctrl_c_stops_and_calibrates_what_came(tmp_path, truth):
+    session, _ = truth
+    header, lines = session_lines(session)
+    out = tmp_path / "D"
+    cap = subprocess.Popen(CLI + ["capture", "-", "--out", str(out), "--no-view",
+                                  "--target", "factory"], stdin=subprocess.PIPE,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV, text=True)
+    try:
+        cap.stdin.write("\n".join([header] + lines[:7000]) + "\n")  # 70 s: 12 poses
+        cap.stdin.flush()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not (
+                (out / "session.csv").exists() and _rows(out / "session.csv") >= 7000):
+            time.sleep(0.05)
+        cap.send_signal(signal.SIGINT)
+        stdout, stderr = cap.communicate(timeout=60)
+    finally:
+        cap.kill()
+    # Interrupted short of the factory's targets: the calibration of what came is written,
+    # and the exit code says the targets were not met.
+    assert cap.returncode == 1, stderr
+    assert "stopped: interrupted" in stdout and "targets not met" in stdout, (stdout, stderr)
+    assert (out / "calib.json").exists() and _rows(out / "session.csv") == 7000
