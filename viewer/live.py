@@ -120,3 +120,83 @@ class LiveView:
     def close(self) -> None:
         self.send()
         self.rec.flush()
+
+
+class LiveViewer:
+    """The viewer a live capture logs to: the native viewer, or the web viewer (``web``), run
+    by the ``rerun`` launcher in its own process group with its gRPC server on a free port of
+    127.0.0.1 (rerun's own defaults are every interface and port 9876, where another viewer may
+    already listen). ``rrd`` also saves the recording."""
+
+    def __init__(self, live: LiveView, *, web: bool, rrd: str | None = None) -> None:
+        import subprocess
+        import tempfile
+
+        from imucal.errors import ImucalError
+
+        from .app import (
+            LOOPBACK,
+            free_port,
+            rerun_executable,
+            viewer_env,
+            viewer_error,
+            wait_serving,
+            web_url,
+        )
+
+        rerun = rerun_executable()
+        if rerun is None:
+            raise ImucalError("the viewer is not available: no 'rerun' launcher (pip install "
+                              "'rerun-sdk==0.41.0'); --no-view captures without it",
+                              source="viewer")
+        grpc = free_port()
+        cmd = [rerun, "--bind", LOOPBACK, "--port", str(grpc)]
+        self.url = None
+        if web:
+            web_port = free_port()
+            cmd += ["--web-viewer", "--web-viewer-port", str(web_port)]
+            self.url = web_url(web_port, grpc)
+        self.log = tempfile.NamedTemporaryFile(prefix="imucal-live-", suffix=".log",  # noqa: SIM115
+                                               delete=False)
+        self.proc = subprocess.Popen(cmd, start_new_session=True, env=viewer_env(False),
+                                     stdin=subprocess.DEVNULL, stdout=self.log,
+                                     stderr=subprocess.STDOUT)
+        if not wait_serving(self.proc, LOOPBACK, grpc, timeout=30.0):
+            self.log.flush()
+            text = open(self.log.name, errors="replace").read()
+            self.close()
+            raise ImucalError(viewer_error(text, self.proc.returncode or 0), source="viewer")
+        sinks = [rr.GrpcSink(f"rerun+http://{LOOPBACK}:{grpc}/proxy")]
+        if rrd is not None:
+            sinks.append(rr.FileSink(rrd))
+        live.rec.set_sinks(*sinks, default_blueprint=blueprint())
+
+    def wait(self) -> None:
+        """Until the viewer exits or Ctrl-C (the web viewer serves until then)."""
+        try:
+            self.proc.wait()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """End the viewer (its process group), then :meth:`detach`."""
+        import contextlib
+
+        from .app import _end_group
+
+        with contextlib.suppress(OSError):
+            if self.proc.poll() is None:
+                _end_group(self.proc)
+        self.detach()
+
+    def detach(self) -> None:
+        """Leave the viewer running (a native window the user closes); drop its log file (the
+        viewer keeps writing to it until it exits, then it is gone)."""
+        import contextlib
+        import os
+
+        self.log.close()
+        with contextlib.suppress(OSError):
+            os.unlink(self.log.name)

@@ -22,6 +22,7 @@ from imucal.cli.options import (
     pick,
     positive,
     shared_options,
+    usage_error,
 )
 
 _TARGETS = "quick, default or factory"
@@ -69,6 +70,9 @@ def capture_cmd(
              "known to the targets and out of them.")] = None,
     no_view: Annotated[bool, typer.Option(
         "--no-view", help="No live viewer (scripts and tests); the guide is printed.")] = False,
+    web: Annotated[bool, typer.Option(
+        "--web", help="Show the live view in the web viewer (its address is printed; it "
+                      "serves until Ctrl-C after the capture).")] = False,
     json_status: Annotated[bool, typer.Option(
         "--json-status", help="The guide as one JSON object a line on standard output (for a "
                               "factory script), instead of text.")] = False,
@@ -103,7 +107,9 @@ def capture_cmd(
             return check(limits, result_columns(result)).broken
     src = open_source(source)
 
-    live = _live_view(no_view, rrd)
+    if no_view and web:
+        raise usage_error("--web shows the live view: leave out --no-view", "'--web'")
+    live, viewer = _live_view(no_view, web, rrd)
 
     def on_status(st: dict) -> None:
         if live is not None:
@@ -141,36 +147,44 @@ def capture_cmd(
         sys.stdout = saved
     if not report.passed:
         print(f"targets not met ({goal.text()}): fail", file=out_stream)
+    if viewer is not None and viewer.url is not None:
+        try:  # Ctrl-C ends the view, not the run: the exit code stays the pass
+            print(f"the live view stays at {viewer.url} until Ctrl-C", file=sys.stderr,
+                  flush=True)
+            viewer.wait()
+        except KeyboardInterrupt:
+            viewer.close()
+    elif viewer is not None:
+        viewer.detach()  # the native window stays until the user closes it
     return 0 if report.passed else 1
 
 
-def _live_view(no_view: bool, rrd: str | None):
-    """The live view: saved to ``rrd`` when given, else shown in the native viewer where there
-    is a display; None for --no-view without --rrd, or without a display (said in one line)."""
+def _live_view(no_view: bool, web: bool, rrd: str | None):
+    """The live view and its viewer: the web viewer (--web), else the native viewer where
+    there is a display; the recording saved to ``rrd`` when given. (None, None) for --no-view
+    without --rrd; without a display (and without --web) one line says so."""
     import os
 
     display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    if rrd is None and (no_view or not display):
-        if not no_view:
-            print("no display (neither DISPLAY nor WAYLAND_DISPLAY is set): the guide is "
-                  "printed; --rrd FILE saves the live view", file=sys.stderr)
-        return None
+    show = not no_view and (web or display)
+    if not no_view and not show:
+        print("no display (neither DISPLAY nor WAYLAND_DISPLAY is set): the guide is printed; "
+              "--web serves the live view, --rrd FILE saves it", file=sys.stderr)
+    if not show and rrd is None:
+        return None, None
     from imucal.capture.detector import MIN_HOLD_S
     from imucal.cli.outputs import viewer_available
 
     with viewer_available():
-        from viewer.live import LiveView, blueprint
+        from viewer.live import LiveView, LiveViewer, blueprint
     live = LiveView.new(MIN_HOLD_S)
-    if rrd is not None:
+    if not show:
         live.rec.save(rrd, default_blueprint=blueprint())
-    else:
-        import socket
-
-        with socket.socket() as s:  # a free port: never hand the capture to another viewer
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        live.rec.spawn(port=port, default_blueprint=blueprint())
-    return live
+        return live, None
+    viewer = LiveViewer(live, web=web, rrd=rrd)
+    if viewer.url is not None:
+        print(f"live view: {viewer.url}", file=sys.stderr, flush=True)
+    return live, viewer
 
 
 @app.command("replay")

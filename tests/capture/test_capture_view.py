@@ -3,9 +3,11 @@ still state, the poses on the sphere, the fits' worst standard error over its ta
 guide; read back from the file."""
 
 import os
+import signal
 import socket
 import subprocess
 import sys
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -53,3 +55,43 @@ def test_rrd_of_a_tcp_capture(tmp_path, capsys):
     _, guide = readback.column(rrd, "guide", "TextDocument:text")
     assert "next: hold with" in str(guide[-1])
 
+
+
+def test_web_live_view_serves_while_capturing(tmp_path):
+    """--web: the web viewer answers at the printed address during the capture, the recording
+    is also saved with --rrd, and the view stays until Ctrl-C; the exit code is the pass."""
+    synth = subprocess.Popen(CLI + ["synth", str(tmp_path / "s.mat"), "--poses", "40",
+                                    "--seed", "3", "--stream", "-", "--speed", "50"],
+                             env=ENV, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    rrd = tmp_path / "capture.rrd"
+    cap = subprocess.Popen(CLI + ["capture", "-", "--out", str(tmp_path / "D"), "--web",
+                                  "--rrd", str(rrd), "--json-status"],
+                           stdin=synth.stdout, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, env=ENV, text=True)
+    synth.stdout.close()
+    answered = None
+    try:
+        for line in cap.stderr:
+            if line.startswith("live view: "):
+                url = line.split(": ", 1)[1].strip()
+                with urllib.request.urlopen(url, timeout=10) as page:
+                    answered = page.status
+            if line.startswith("the live view stays at"):
+                cap.send_signal(signal.SIGINT)
+                break
+        rc = cap.wait(timeout=60)
+    finally:
+        if cap.poll() is None:  # a failure above: end it politely, so it ends its viewer
+            cap.terminate()
+            try:
+                cap.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                cap.send_signal(signal.SIGINT)
+                cap.wait(timeout=10)
+        synth.kill()
+        synth.wait()
+    assert answered == 200 and rc == 0
+    assert (tmp_path / "D" / "calib.json").exists()
+    t, _ = readback.scalars(rrd, "live/accelerometer")
+    rows = (tmp_path / "D" / "session.csv").read_text().splitlines()[1:]
+    assert len(t) == len(rows)
