@@ -76,24 +76,23 @@ print(json.dumps({"cpu_s": total - final, "final_s": final, "lines": r.samples,
 """
 
 
-def _feed(fd: int, session, speed: float) -> None:
-    from imucal.capture.send import frames_of, paced
+def _feed(fd: int, t, head: list[bytes], frames: list[bytes], speed: float) -> None:
+    from imucal.capture.send import paced
 
-    head, frames = frames_of(session, "lines")
     with os.fdopen(fd, "wb", buffering=0) as out:
         def send(chunk: list[bytes]) -> None:
             out.write(b"".join(chunk))
 
         send(head)
-        paced(session.t_acc, frames, speed, send)
+        paced(t, frames, speed, send)
 
 
-def _run(code: list[str], session, speed: float) -> dict:
+def _run(code: list[str], stream: tuple, speed: float) -> dict:
     r, w = os.pipe()
     proc = subprocess.Popen([sys.executable, "-c", *code], stdin=r, stdout=subprocess.PIPE,
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, text=True)
     os.close(r)
-    feeder = threading.Thread(target=_feed, args=(w, session, speed))
+    feeder = threading.Thread(target=_feed, args=(w, *stream, speed))
     feeder.start()
     out, _ = proc.communicate()
     feeder.join()
@@ -114,10 +113,13 @@ def main() -> None:
     n = len(session.t_acc)
     print(f"load average {os.getloadavg()[0]:.2f}; {n} samples at {args.rate:g} Hz "
           f"({session.duration:.0f} s) sent at {args.speed:g}x real time")
-    plain = _run([PLAIN], session, args.speed)
+    from imucal.capture.send import frames_of
+
+    stream = (session.t_acc, *frames_of(session, "lines"))  # made before any consumer waits
+    plain = _run([PLAIN], stream, args.speed)
     with tempfile.TemporaryDirectory() as tmp:
-        cap = _run([CAPTURE, str(Path(tmp) / "D")], session, args.speed)
-        view = _run([CAPTURE, str(Path(tmp) / "V"), str(Path(tmp) / "v.rrd")], session,
+        cap = _run([CAPTURE, str(Path(tmp) / "D")], stream, args.speed)
+        view = _run([CAPTURE, str(Path(tmp) / "V"), str(Path(tmp) / "v.rrd")], stream,
                     args.speed)
     assert cap["lines"] == n == plain["lines"] - 1, (cap, plain, n)  # the header line
     for name, res in (("plain read", plain), ("capture", cap), ("+ live view", view)):

@@ -7,8 +7,8 @@ pass: the capture stops there, failed.
 
 The targets are in the units a user reads: misalignment in mrad, scale factor relative to
 itself in %, accelerometer bias in mg (the raw bias's error times the scale, over |g|). The
-presets were measured on synthetic sessions at the default noise (3 mg, 3 mrad/s): "default" is
-reached at about 20 poses of 3 s, "factory" at about 40, "quick" at about 12.
+presets were measured on synthetic sessions at the default noise (3 mg, 3 mrad/s; seeds 3-5,
+poses of 3 s): "quick" is met at 12-18 poses, "default" at 16-20, "factory" at 22-34.
 """
 
 from __future__ import annotations
