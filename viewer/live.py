@@ -28,20 +28,34 @@ XYZ = [[230, 80, 80], [80, 200, 80], [80, 120, 240]]
 
 
 def blueprint() -> rrb.Blueprint:
-    def series(name: str, path: str) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(name=name, origin="/", contents=[path])
+    """Signals and the detector on the left; the sphere, the poses, the fits and the guide on
+    the right. The time panel follows the newest data (live), so a saved capture opens at its
+    end."""
+    def series(name: str, *paths: str, y: tuple[float, float] | None = None
+               ) -> rrb.TimeSeriesView:
+        axis = {} if y is None else {"axis_y": rrb.ScalarAxis(range=y)}
+        return rrb.TimeSeriesView(name=name, origin="/", contents=list(paths), **axis)
 
-    return rrb.Blueprint(rrb.Horizontal(
-        rrb.Vertical(series("Accelerometer (raw)", ACC), series("Gyroscope (raw)", GYRO),
-                     rrb.TimeSeriesView(name="Still, hold (s)", origin="/",
-                                        contents=[STILL, HOLD]),
-                     rrb.TimeSeriesView(name="Poses; worst standard error / target",
-                                        origin="/", contents=[POSES, RATIO])),
-        rrb.Vertical(rrb.Spatial3DView(name="Poses held (the axis that was up)",
-                                       origin="/sphere"),
-                     rrb.TextDocumentView(name="Guide", origin="/guide"),
-                     row_shares=[3, 1]),
-        column_shares=[3, 2]), collapse_panels=True)
+    sphere = rrb.Spatial3DView(
+        name="Poses held: the axis that was up; gravity now; the next pose", origin="/sphere",
+        line_grid=rrb.LineGrid3D(visible=False),
+        eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=[1.5, -1.9, 1.2],
+                                       look_target=[0, 0, 0], eye_up=[0, 0, 1]))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(series("Accelerometer (raw)", ACC), series("Gyroscope (raw)", GYRO),
+                         series("Still (1) or moving (0)", STILL, y=(-0.1, 1.1)),
+                         series("Hold timer and the shortest hold that counts (s)", HOLD,
+                                y=(0.0, 6.0))),
+            rrb.Vertical(sphere,
+                         rrb.Horizontal(series("Poses held", POSES, y=(0.0, 30.0)),
+                                        series("Worst standard error / its target", RATIO,
+                                               y=(0.0, 4.0))),
+                         rrb.TextDocumentView(name="Guide", origin="/guide"),
+                         row_shares=[3, 2, 2]),
+            column_shares=[3, 2]),
+        rrb.TimePanel(timeline="time", state="collapsed", play_state="following"),
+        collapse_panels=True)
 
 
 class LiveView:
@@ -57,6 +71,8 @@ class LiveView:
         rec.log(GYRO, rr.SeriesLines(names=["x", "y", "z"], colors=XYZ), static=True)
         rec.log(STILL, rr.SeriesLines(names="still"), static=True)
         rec.log(HOLD, rr.SeriesLines(names=["hold", "counts from"]), static=True)
+        rec.log(POSES, rr.SeriesLines(names="poses"), static=True)
+        rec.log(RATIO, rr.SeriesLines(names="worst / target"), static=True)
         rec.log(SPHERE_AXES, rr.Arrows3D(vectors=np.eye(3) * 1.3, colors=XYZ,
                                          labels=["x", "y", "z"]), static=True)
 
@@ -106,7 +122,7 @@ class LiveView:
         cal = st.get("calibration")
         if st["event"] == "calibration" and cal is not None:
             self.rec.log(RATIO, rr.Scalars(float(cal["ratio"])))
-        lines = [f"**{st['state']}**: {st['guide']}", "",
+        lines = [f"**{st['guide']}**", "",
                  f"- poses {st['orientations']} ({st['orientations_needed']} needed), "
                  f"sphere covered {st['coverage'] * 100:.0f} %",
                  f"- next: hold with {st['next_pose']}",
