@@ -58,11 +58,11 @@ class SessionWriter:
         if not self.lock.acquire(blocking=wait):
             return False
         try:
-            n = len(self.pending)
-            self._write("\n".join(self.pending) + "\n")
-            self.pending.clear()
+            # Taken out before the write: a Ctrl-C during it can never write a row twice.
+            rows, self.pending = self.pending, []
+            self._write("\n".join(rows) + "\n")
             if self.error is None:
-                self.rows += n
+                self.rows += len(rows)
         finally:
             self.lock.release()
         return True
