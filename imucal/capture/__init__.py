@@ -1,6 +1,6 @@
 """Live capture (issue 25): read a device's stream, write every sample to a session file as it
 arrives, follow the holds and turns with an incremental still detector, calibrate the data so
-far after each new hold, and stop when the calibration is good enough (docs/method.md §8).
+far after each new hold, and stop when the calibration is good enough (docs/method.md §13).
 
 One module per idea: ``sources`` (where the bytes come from: standard input, TCP, UDP, a serial
 port), ``lines`` (bytes to rows of numbers, garbled lines counted), ``writer`` (the session file,

@@ -1,5 +1,5 @@
 """The still detector of a live capture: M1 (method.md §1) one batch of samples at a time, the
-holds it makes, the poses they reach and the pose to hold next (method.md §8).
+holds it makes, the poses they reach and the pose to hold next (method.md §13).
 
 ``s2 = var_x^2 + var_y^2 + var_z^2`` over the ``window`` samples that end at each sample (a
 trailing window: the live answer cannot wait for samples to come), from running sums over the

@@ -1,4 +1,4 @@
-"""The capture loop (method.md §8): read, parse, write, detect; after each new hold, calibrate
+"""The capture loop (method.md §13): read, parse, write, detect; after each new hold, calibrate
 the data so far (the full method on the session file, in a worker thread so that reading goes
 on); stop when the targets are met, at ``until`` seconds, at the end of the stream or on Ctrl-C.
 

@@ -1,5 +1,5 @@
 """When a capture has enough: the run is judged good and every accelerometer and gyroscope
-parameter's standard error is under its target (method.md §8).
+parameter's standard error is under its target (method.md §13).
 
 With a spec (the batch's limits file, checked by the caller's ``judge``), enough is also
 "within its limits", and a calibration known to the targets but out of a limit can no longer
