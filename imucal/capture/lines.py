@@ -217,7 +217,9 @@ class LineParser:
         if lay.t is not None:
             self.last_t = float(values[-1, lay.t])
         self.valid += len(rows)
-        if lay.delimiter == ",":
+        if lay.delimiter == "," and len(rows) == len(lines):
+            text = lines  # every line whole: kept as it came
+        elif lay.delimiter == ",":
             text = [lines[i] for i in rows]
         else:
             text = [",".join(_split(lines[i], lay.delimiter)) for i in rows]

@@ -108,7 +108,8 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
 
     def emit(event: str) -> None:
         if on_status is not None:
-            on_status(status(event, time.monotonic() - start, st, parser, last))
+            on_status(status(event, time.monotonic() - start, st, parser, last,
+                             getattr(source, "garbled", 0)))
 
     try:
         while True:
@@ -165,6 +166,8 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
         pool.shutdown(wait=True, cancel_futures=True)
         if writer is not None:
             writer.close()
+            if parser.valid == 0:  # a header and no sample: nothing to keep, nothing in the way
+                writer.path.unlink(missing_ok=True)
         source.close()
     if parser.valid == 0:
         raise _no_data(source, parser, time.monotonic() - start)
@@ -202,12 +205,14 @@ def _no_data(source: Source, parser: LineParser, seconds: float) -> ImucalError:
 
 
 def status(event: str, elapsed: float, st: DetectorState, parser: LineParser,
-           last: Progress | None) -> dict:
-    """One status object (``--json-status`` prints it as a line of JSON)."""
+           last: Progress | None, garbled_frames: int = 0) -> dict:
+    """One status object (``--json-status`` prints it as a line of JSON); ``garbled_frames``
+    what the source itself skipped (bytes that form no MAVLink message)."""
     return {"event": event, "elapsed_s": round(elapsed, 3), "state": st.state,
             "hold_s": round(st.hold_s, 2), "holds": st.holds, "orientations": st.orientations,
             "orientations_needed": ORIENTATIONS_NEEDED, "coverage": round(st.coverage, 3),
-            "next_pose": st.next_pose, "samples": parser.valid, "garbled": parser.garbled,
+            "next_pose": st.next_pose, "samples": parser.valid,
+            "garbled": parser.garbled + garbled_frames,
             "calibration": None if last is None else
             {"verdict": last.level, "worst": last.worst, "ratio": round(last.ratio, 3),
              "met": last.met},

@@ -348,3 +348,13 @@ def test_ctrl_c_stops_and_calibrates_what_came(tmp_path, truth):
     assert cap.returncode == 1, stderr
     assert "stopped: interrupted" in stdout and "targets not met" in stdout, (stdout, stderr)
     assert (out / "calib.json").exists() and _rows(out / "session.csv") == 7000
+
+
+def test_a_header_and_no_sample_leaves_nothing(tmp_path):
+    r, w = os.pipe()
+    os.write(w, b"t,ax,ay,az,gx,gy,gz\n1,2,3\nfoo,bar\n")
+    with pytest.raises(ImucalError) as e:
+        capture(FdSource(r, "test"), tmp_path / "D", PRESETS["default"], no_data_s=0.5)
+    os.close(w)
+    assert "2 garbled lines" in str(e.value) and "the format and the columns" in str(e.value)
+    assert not (tmp_path / "D" / "session.csv").exists()
