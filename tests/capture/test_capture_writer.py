@@ -51,3 +51,27 @@ def test_a_full_disk_keeps_what_was_written(tmp_path, monkeypatch):
     w.close()
     assert "No space left" in w.error and w.rows == 1
     assert (tmp_path / "session.csv").read_text() == "t,ax,ay,az\n1,0,0,1\n"
+
+
+def test_ctrl_c_during_a_write_never_writes_a_row_twice(tmp_path, monkeypatch):
+    # Ctrl-C lands right after the rows reached the file, before the writer noted it: closing
+    # (the capture's finally) must not write them again (a repeated time: an unreadable file).
+    w = SessionWriter(tmp_path, ["t", "ax", "ay", "az"])
+    real = os.write
+    hits = []
+
+    def write_then_interrupt(fd, data):
+        n = real(fd, data)
+        if fd == w.fd and not hits:
+            hits.append(n)
+            raise KeyboardInterrupt
+        return n
+
+    monkeypatch.setattr(writer_mod.os, "write", write_then_interrupt)
+    w.add(["1,0,0,1", "2,0,0,1"])
+    with pytest.raises(KeyboardInterrupt):
+        w.flush()
+    w.add(["3,0,0,1"])
+    w.close()
+    assert (tmp_path / "session.csv").read_text().splitlines() == [
+        "t,ax,ay,az", "1,0,0,1", "2,0,0,1", "3,0,0,1"]
