@@ -17,6 +17,7 @@ from imucal.cli.options import (
     SETTING_OPTIONS,
     SessionArg,
     VerboseOpt,
+    _one_of,
     at_least,
     build_settings,
     choice,
@@ -382,6 +383,19 @@ def synth(
     drift_acc_scale: Annotated[str | None, typer.Option(
         "--drift-acc-scale", metavar="X,Y,Z", show_default=False,
         help="--activity: the accelerometer scales' change, %.")] = None,
+    stream: Annotated[str | None, typer.Option(
+        "--stream", metavar="-|tcp://HOST:PORT|udp://HOST:PORT", show_default=False,
+        help="Also send the session as a device would, a line per sample (t,ax,ay,az,gx,gy,gz): "
+             "to standard output, to one TCP client (listening on HOST:PORT) or as UDP "
+             "datagrams, for 'imucal capture'.")] = None,
+    speed: Annotated[float | None, typer.Option(
+        "--speed", metavar="X", callback=positive, show_default=False,
+        help="With --stream: X times faster than real time [default: real time].")] = None,
+    stream_format: Annotated[str, typer.Option(
+        "--format", metavar="lines|motioncal|mavlink",
+        callback=_one_of("lines", "motioncal", "mavlink"),
+        help="With --stream: lines of t,ax,ay,az,gx,gy,gz, MotionCal's Raw: lines (counts, no "
+             "time: capture them with --rate), or MAVLink HIGHRES_IMU messages.")] = "lines",
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
@@ -446,10 +460,17 @@ def synth(
     if tr.mag is not None:
         change += (f", magnetometer {len(sess.others[0].t)} samples at "
                    f"{fmt_rate(mag_rate)} (gauss)")
+    import sys
+
     print(f"session         {poses} poses, {sess.duration:.1f} s, accelerometer "
           f"{len(sess.acc)} samples at {fmt_rate(sess.acc_rate)} ({acc_unit}), gyroscope "
           f"{len(sess.gyro)} samples at {fmt_rate(sess.gyro_rate)} ({gyro_unit}){change}\n"
-          f"wrote {out}\nwrote {truth}")
+          f"wrote {out}\nwrote {truth}", file=sys.stderr if stream == "-" else sys.stdout,
+          flush=True)
+    if stream is not None:
+        from imucal.capture.send import stream_session
+
+        stream_session(sess, stream, 1.0 if speed is None else speed, stream_format)
 
 
 @app.command()

@@ -20,6 +20,7 @@ import sys
 
 import typer
 
+from imucal.cli import capture as _capture  # noqa: F401  (registers capture on app)
 from imucal.cli import fleet as _fleet  # noqa: F401  (registers batch and store on app)
 from imucal.cli import inuse as _inuse  # noqa: F401  (registers check and refresh on app)
 from imucal.cli import tools  # noqa: F401  (registers export and noise on app)

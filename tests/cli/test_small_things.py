@@ -252,7 +252,7 @@ def test_batch_without_dask_says_how_to_install_it(tmp_path, capsys, monkeypatch
 
 
 # Imported by name where the distribution's name differs.
-MODULE = {"rerun-sdk": "rerun", "dask": "distributed"}
+MODULE = {"rerun-sdk": "rerun", "dask": "distributed", "pyserial": "serial"}
 
 
 def _dist(requirement: str) -> str:
