@@ -7,7 +7,6 @@ loading checks them and refuses a file of another format or an unknown version.
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -17,6 +16,13 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.atomic import write_text_atomic
+from imucal.io.calibration_sections import (
+    magnetometer_section,
+    temperature_section,
+    triads_section,
+)
+from imucal.io.json_numbers import json_number as _f
+from imucal.io.json_numbers import json_numbers as _fl
 from imucal.io.noise_json import noise_to_dict
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES, SensorModel
 from imucal.stages.apply import Calibration
@@ -44,21 +50,6 @@ CONVENTIONS = {
                 "the start of time, the last to its end); between two segments, the mean of "
                 "the two segments' parameters.",
 }
-
-
-def _f(x: float | None) -> float | None:
-    """JSON has no NaN or Infinity: write them as null."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _fl(a: Any) -> Any:
-    arr = np.asarray(a, dtype=float)
-    if arr.ndim == 0:
-        return _f(arr)
-    return [_fl(v) for v in arr]
 
 
 def _before_after(x: BeforeAfter) -> dict:
@@ -146,129 +137,9 @@ def result_to_dict(result: Result) -> dict:
         "guide": None if result.guide is None else result.guide.to_dict(),
         # The run judged (imucal.stages.verdict): level, the one reason, the next step.
         "verdict": None if result.verdict is None else result.verdict.to_dict(),
-    } | _magnetometer_keys(result) | ({"triads": _triads_dict(result)} if result.triads else {}) | (
-        {"temperature": _temperature_dict(result)} if result.temperature else {})
-
-
-MAG_MODEL = ("m = R_am M (m_raw - b) (imucal M8): b the hard iron and M the soft iron (symmetric, "
-             "det M = 1) in the raw unit, so |m| = field in the raw unit; R_am the rotation from "
-             "the magnetometer's corrected frame to the accelerometer's calibrated frame (M2's); "
-             "u . m / field = -sin(dip) for the calibrated accelerometer's up u when still. "
-             "std.R_am_deg: small rotations about the accelerometer's x, y, z axes. Fitted over "
-             "the whole session.")
-
-
-def _magnetometer_keys(result: Result) -> dict:
-    """The ``magnetometer`` section, only for a session holding one (a session without keeps
-    its calibration file byte for byte)."""
-    stream = next((x for x in result.session.others if x.kind == "mag"), None)
-    if stream is None:
-        return {}
-    fit = result.magnetometer
-    if fit is None:
-        said = [w for w in result.warnings if w.code in ("mag_not_calibrated", "mag_disturbed")]
-        return {"magnetometer": {"model": MAG_MODEL, "stream": stream.name, "unit": stream.unit,
-                                 "calibrated": False,
-                                 "reasons": [w.message for w in said]}}
-    q = fit.quality
-    return {"magnetometer": {
-        "model": MAG_MODEL, "stream": fit.stream, "unit": fit.unit, "calibrated": True,
-        "M": _fl(fit.M), "b": _fl(fit.b),
-        "R_am": None if fit.R_am is None else _fl(fit.R_am),
-        "field": _f(fit.field), "dip_deg": _f(fit.dip_deg),
-        "std": {"M": _fl(fit.std_M), "b": _fl(fit.std_b), "field": _f(fit.std_field),
-                "dip_deg": _f(fit.std_dip_deg),
-                "R_am_deg": None if fit.std_R_am_deg is None else _fl(fit.std_R_am_deg)},
-        "quality": {"norm_rms_pct": {"in_sample": _f(q.norm_rms_pct),
-                                     "held_out": _f(q.norm_rms_held_out_pct),
-                                     "note": "|m| / field - 1; held out: each half of the "
-                                             "recording's time judged by the other's fit"},
-                    "dip_spread_deg": _f(q.dip_spread_deg), "coverage": _f(q.coverage),
-                    "missing": q.missing, "still_blocks": q.blocks,
-                    "heading_std_deg": _f(q.heading_std_deg)},
-        "samples": fit.samples, "samples_used": int(fit.used.sum()), "start": fit.start,
-        "soft_iron_estimated": fit.soft_iron,
-        "disturbances": [d.to_dict() for d in fit.disturbances]}}
-
-
-def _temperature_dict(result: Result) -> dict:
-    """Each sensor's bias in temperature (method.md §12, M16); only written when fitted."""
-    out = {"model": "b(T) = b0 + sum_j coefficients[j] (T - reference_degC)^j, T held inside "
-                    "span_degC (never extrapolated), raw units per degC^j (method.md M16); "
-                    "the accelerometer's K(T) = K (1 + scale_slope_per_degC (T - "
-                    "reference_degC)) where a slope was fitted"}
-    for f in result.temperature:
-        out[f.sensor] = {
-            "b0": _fl(f.b0), "reference_degC": _f(f.t0), "span_degC": [_f(f.span[0]),
-                                                                       _f(f.span[1])],
-            "order": f.order, "coefficients": _fl(f.coefs),
-            "cv_rms_by_order": [_f(v) if np.isfinite(v) else None for v in f.cv_rms],
-            "static_blocks": f.blocks, "hysteresis": f.hysteresis,
-            "scale_slope_per_degC": None if f.scale_slope is None else _fl(f.scale_slope),
-            "notes": list(f.notes)} | (
-            # M2's T and K fitted beside the polynomial (M17): the model b(T) belongs to
-            {"T": _fl(f.model.T), "K": _fl(f.model.K)} if f.model is not None else {})
-    return out
-
-
-def _triads_dict(result: Result) -> dict:
-    """The session's other triads (method.md §11): each one's own calibration (its segments,
-    quality and verdict, as for the reference), its rotation to the reference with the standard
-    error, and the agreement of the two once calibrated. Only written when there are some, so a
-    session of one triad writes the file it always did."""
-    out = []
-    for tri in result.triads:
-        entry: dict[str, Any] = {"accelerometer": tri.name, "gyroscope": tri.gyro,
-                                 "clock_offset_s": _f(tri.clock_offset_s)}
-        if tri.result is not None:
-            own = result_to_dict(tri.result)
-            entry |= {"units": own["units"], "segments": own["segments"],
-                      "quality": own["quality"], "verdict": own["verdict"],
-                      "warnings": own["warnings"]} | (
-                {"temperature": own["temperature"]} if "temperature" in own else {})
-        a = tri.agreement
-        if a is not None:
-            rot = a.rotation
-            entry |= {
-                "rotation_to_reference": _fl(rot.R),
-                "rotation_angle_deg": _f(a.angle_deg),
-                "rotation_std_deg": {"about_x": _f(rot.std_deg[0]), "about_y": _f(rot.std_deg[1]),
-                                     "about_z": _f(rot.std_deg[2]),
-                                     "total": _f(rot.std_total_deg)},
-                "shared_static_blocks": a.blocks,
-                "agreement_mg": {"before": {"rms": _f(a.before_rms_mg)},
-                                 "after_held_out": {"rms": _f(a.held_out_rms_mg),
-                                                    "max": _f(float(np.max(a.held_out_mg)))}},
-            }
-        if tri.gyro_agreement is not None:  # M14: the gyroscope's own rotation, from the turns
-            ga = tri.gyro_agreement
-            gr = ga.rotation
-            entry["gyroscope_rotation"] = {
-                "rotation_to_reference": _fl(gr.R),
-                "rotation_std_deg": {"about_x": _f(gr.std_deg[0]), "about_y": _f(gr.std_deg[1]),
-                                     "about_z": _f(gr.std_deg[2]),
-                                     "total": _f(gr.std_total_deg)},
-                "turns": ga.turns, "turn_residual_rms_deg": _f(ga.residual_rms_deg),
-                "angle_to_accelerometer_rotation_deg": _f(ga.accel_difference_deg)}
-        v = tri.against_reference
-        if v is not None:  # M15: its M2 fitted to the reference's calibrated gravity vectors
-            entry["against_reference"] = {
-                "T": _fl(v.model.T), "K": _fl(v.model.K), "b": _fl(v.model.b),
-                "std": {n: _f(x) for n, x in zip(("s_x", "s_y", "s_z", "b_x", "b_y", "b_z"),
-                                                 np.r_[v.std_K, v.std_b])},
-                "rotation_to_reference": _fl(v.R), "residual_rms_mg": _f(v.rms_mg),
-                "static_blocks": v.blocks,
-                "note": "the triad's M2 fitted to the reference's calibrated gravity vectors "
-                        "(method.md M15): three equations per still block; the reference's own "
-                        "errors pass into it and are not in these standard errors"}
-        entry["said"] = list(tri.said)
-        out.append(entry)
-    chosen = result.session.chosen
-    return {"reference": chosen[0] if chosen else "the calibrated accelerometer",
-            "convention": "u_ref = R u_triad (method.md M12): R turns a triad's calibrated "
-                          "vector into the reference triad's frame; std in degrees about the "
-                          "reference's axes, total = sqrt(trace of the covariance)",
-            "triads": out}
+    } | magnetometer_section(result) | (
+        {"triads": triads_section(result, result_to_dict)} if result.triads else {}) | (
+        {"temperature": temperature_section(result)} if result.temperature else {})
 
 
 def _gyro_cv_keys(fit: GyroFit) -> dict:
