@@ -11,6 +11,10 @@ and renamed into place only when all of them are complete.
   On any error or interrupt before that, every temporary is removed and no previous file is
   touched. A SIGKILL leaves hidden ``.imucal-*`` temporaries; the next run on the same
   outputs, holding their locks, removes them.
+- ``owned`` targets (a file imucal names itself, such as a table's gyroscope sidecar) are
+  replaced or removed only when imucal can prove it wrote them: commit leaves a record of each
+  beside it (``.imucal-TAG.owner``, the file's SHA-256 as ``sha256sum`` writes it), and a run
+  finding such a name taken by any other file refuses before any work.
 - :func:`atomic_path`, :func:`write_atomic`: one file, for the library's own writers.
 """
 
@@ -32,7 +36,7 @@ from pathlib import Path
 from imucal.errors import ImucalError
 from imucal.io.targets import check_output_path, refuse
 
-__all__ = ["PREFIX", "Transaction", "atomic_path", "check_output_path", "held_back",
+__all__ = ["OWNER_SUFFIX", "PREFIX", "Transaction", "atomic_path", "check_output_path", "held_back",
            "io_problem", "write_atomic", "write_text_atomic"]
 
 try:
@@ -41,6 +45,7 @@ except ImportError:  # not POSIX: still one transaction, without the lock agains
     fcntl = None
 
 PREFIX = ".imucal-"  # temporaries, backups and lock files: hidden, and short whatever the target
+OWNER_SUFFIX = ".owner"  # the record that imucal wrote an ``owned`` target (kept with it)
 _HELD_BACK = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP")
                    if hasattr(signal, n))
 _RUST_IO = re.compile(r"\(os error (\d+)\)")  # how Rust's io::Error (polars, rerun) ends
@@ -166,6 +171,42 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     write_atomic(path, _w)
 
 
+# --- ownership records -------------------------------------------------------------------------
+
+
+def owner_record(target: Path) -> Path:
+    """Where the record that imucal wrote ``target`` lives (short whatever the name)."""
+    return target.parent / f"{PREFIX}{_tag(target)}{OWNER_SUFFIX}"
+
+
+def _record_line(path: Path, name: str) -> bytes:
+    """``path``'s SHA-256 as sha256sum prints it, for the file called ``name``."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            h.update(block)
+    return h.hexdigest().encode() + b"  " + os.fsencode(name) + b"\n"
+
+
+def written_by_imucal(target: Path) -> bool:
+    """Whether ``target`` is, byte for byte, the file an imucal run left there (its record
+    beside it says so)."""
+    try:
+        record = owner_record(target).read_bytes()
+        return stat.S_ISREG(os.lstat(target).st_mode) and record == _record_line(target,
+                                                                               target.name)
+    except OSError:
+        return False
+
+
+def _identity(path: Path) -> tuple | None:
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+
+
 # --- the transaction ---------------------------------------------------------------------------
 
 
@@ -180,6 +221,10 @@ class _Output:
     removed: bool = False  # ... and there was one
     lock_fd: int | None = None
     lock: Path | None = None
+    owned: str | None = None  # replaced or removed only if imucal wrote it: what it is
+    record: _Output | None = None  # ... and the record that says so (see owner_record)
+    seen: tuple | None = None  # the file found at the start of the run (see _identity)
+    is_record: bool = False  # this output is another's record
 
 
 class Transaction:
@@ -191,13 +236,17 @@ class Transaction:
 
     Leaving the block without :meth:`commit` (an error, Ctrl-C, SIGTERM) removes every
     temporary; the previous files stay byte-identical. ``exclusive`` targets are created, never
-    replaced (a name imucal chose, not the user)."""
+    replaced (a name imucal chose, not the user). ``owned`` targets, mapped to what they
+    are ("the gyroscope table of cal.csv"), are names the user did not give: one taken by a
+    file imucal cannot prove it wrote is refused when the block is entered."""
 
     def __init__(self, targets: Iterable[str | os.PathLike | None], *,
                  inputs: Iterable[str | os.PathLike | None] = (),
-                 exclusive: Iterable[str | os.PathLike] = ()) -> None:
+                 exclusive: Iterable[str | os.PathLike] = (),
+                 owned: dict[str | os.PathLike, str] | None = None) -> None:
         ins = [i for i in inputs if i is not None]
         excl = {os.fspath(p) for p in exclusive}
+        owned = {os.fspath(p): what for p, what in (owned or {}).items()}
         self._outputs: list[_Output] = []
         seen: dict[Path, str] = {}
         for t in targets:
@@ -209,13 +258,22 @@ class Transaction:
                 raise refuse(f"the same file is given for two outputs ({seen[target]} and "
                              f"{shown})", shown)
             seen[target] = shown
-            self._outputs.append(_Output(shown, target, exclusive=shown in excl))
+            out = _Output(shown, target, exclusive=shown in excl, owned=owned.get(shown))
+            self._outputs.append(out)
+            if out.owned is not None:
+                rec = owner_record(target)
+                out.record = _Output(os.fspath(rec), check_output_path(rec, ins),
+                                     is_record=True)
+                self._outputs.append(out.record)
         self.committed = False
 
     def __enter__(self) -> Transaction:
         try:
             for out in sorted(self._outputs, key=lambda o: str(o.target)):
                 self._lock(out)
+            for out in self._outputs:
+                if out.owned is not None:
+                    self._check_owned(out)
         except BaseException:
             self._release()
             raise
@@ -261,6 +319,16 @@ class Transaction:
         # Holding the lock, any temporary of this target is a killed run's leftover.
         for old in out.target.parent.glob(f"{PREFIX}{_tag(out.target)}-*"):
             _unlink(old)
+
+    @staticmethod
+    def _check_owned(out: _Output) -> None:
+        """Refuse, before any work, to replace or remove a file the user did not name and
+        imucal did not write (held under the lock: another run cannot be writing it)."""
+        out.seen = _identity(out.target)
+        if out.seen is not None and not written_by_imucal(out.target):
+            raise ImucalError(f"exists and imucal did not write it, but this run would replace "
+                              f"or remove it ({out.owned}); move it away or choose another "
+                              "output name", source=out.shown)
 
     def _release(self) -> None:
         for out in self._outputs:
@@ -321,7 +389,7 @@ class Transaction:
     @property
     def removed(self) -> list[str]:
         """The previous files commit removed (see :meth:`expect`)."""
-        return [o.shown for o in self._outputs if o.removed]
+        return [o.shown for o in self._outputs if o.removed and not o.is_record]
 
     # -- commit --
 
@@ -329,6 +397,8 @@ class Transaction:
         """Rename every temporary onto its target, all or none; first flush each to the disk
         (a full disk may only show there)."""
         for out in self._outputs:
+            if out.is_record:
+                continue  # made with its file, below
             if out.tmp is not None and out.expected and not out.tmp.exists():
                 out.tmp, out.remove = None, True
             elif out.tmp is None:
@@ -337,6 +407,8 @@ class Transaction:
                 with self._failing_as(out):
                     _fsync(out.tmp)
                     os.chmod(out.tmp, _mode_for(out.target))
+            if out.record is not None:
+                self._prepare_record(out)
         with held_back():
             backups: list[tuple[_Output, Path | None, bool]] = []
             try:
@@ -354,6 +426,25 @@ class Transaction:
             for d in {o.target.parent for o in self._outputs}:
                 with contextlib.suppress(OSError):
                     _fsync(d)
+
+    def _prepare_record(self, out: _Output) -> None:
+        """The record of an owned output goes with it: written for a new file, removed with a
+        removed one. A file put at the name by something else during the run is refused."""
+        if _identity(out.target) != out.seen:
+            raise ImucalError("was changed by something else during the run; no output was "
+                              "changed", source=out.shown)
+        rec = out.record
+        _unlink(rec.tmp)
+        rec.tmp = None
+        if out.remove:
+            rec.remove = True
+            return
+        rec.tmp = _new_temp(rec.target, tagged=True)
+        with self._failing_as(rec):
+            with open(rec.tmp, "wb") as f:
+                f.write(_record_line(out.tmp, out.target.name))
+                f.flush()
+                os.fsync(f.fileno())
 
     @staticmethod
     def _backup(out: _Output) -> tuple[Path | None, bool]:
