@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from imucal.errors import ImucalError
-from imucal.io.load import load_session
+from imucal.io.load import check_gyro_file, load_session
 from imucal.io.readers import display_name
 from imucal.session import Session
 
@@ -137,6 +137,8 @@ def iter_chunks(path: str | os.PathLike, *, gyro_path: str | os.PathLike | None 
     """The recording as consecutive sessions of about ``chunk_bytes`` each (see the module
     docstring). ``load_kw`` are :func:`load_session`'s options; the first chunk's resolved
     accelerometer unit is given to the later ones, so a guess is made once."""
+    if gyro_path is not None:  # pieces of one file are two files: check the files themselves
+        check_gyro_file([Path(path), Path(gyro_path)], load_kw.get("acc_only", False))
     plans = [_plan(Path(path))] + ([_plan(Path(gyro_path))] if gyro_path is not None else [])
     if any(p.kind == "whole" for p in plans):
         sess = load_session(path, gyro_path=gyro_path, **load_kw)

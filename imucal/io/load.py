@@ -108,6 +108,7 @@ def load_session(
                           "--columns", source=source, field="--acc")
     for p in paths:
         _check_file(p, log is not None)
+    check_gyro_file(paths, acc_only)
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
     threads = usable_threads() if threads is None else max(1, int(threads))
@@ -184,7 +185,9 @@ def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
                 source: str, store: Spill, threads: int) -> dict:
     """The accelerometer's and gyroscope's columns, from one file or from two."""
     if len(paths) == 2:
-        parts = _extract(read_file(paths[0], store, threads), ("acc",), opts)
+        first = read_file(paths[0], store, threads)
+        _no_gyro_of_its_own(first, paths)
+        parts = _extract(first, ("acc",), opts)
         parts.update(_extract(read_file(paths[1], store, threads), ("gyro",), opts))
         return parts
     parts = _extract(read_file(paths[0], store, threads), ("acc", "gyro"), opts)
@@ -257,6 +260,43 @@ def _check_columns(columns: Mapping[str, str | int] | None, source: str) -> dict
             raise ImucalError(f"{role!r} must map to a column name or a 0-based position, "
                               f"got {col!r}", source=source, field="columns")
     return dict(columns)
+
+
+def check_gyro_file(paths: list[Path], acc_only: bool) -> None:
+    """Contradictions of a gyroscope's file, refused before anything is read (issue 27):
+    --acc-only with one, and the session's own file given again as its gyroscope."""
+    if len(paths) < 2:
+        return
+    if acc_only:
+        raise ImucalError(f"--acc-only calibrates the accelerometer alone, but --gyro "
+                          f"{display_name(paths[1])} names a gyroscope; give one or the other",
+                          source=display_name(paths[0]), field="--gyro")
+    try:
+        same = os.path.samefile(paths[0], paths[1])
+    except OSError:
+        same = False
+    if same:
+        raise ImucalError("is the session file itself; a file with both sensors needs "
+                          "no --gyro, and a two-file session names the gyroscope's file",
+                          source=display_name(paths[1]), field="--gyro")
+
+
+def _no_gyro_of_its_own(content: Table | Variables, paths: list[Path]) -> None:
+    """A session file with a gyroscope of its own and a --gyro file beside it: which one is
+    meant cannot be told; refused rather than one silently dropped (issue 27). Found by the
+    names alone (--columns maps the accelerometer file's columns, not these)."""
+    if isinstance(content, Table) and content.names is None:
+        return  # no header: one file of a pair must have 3 columns (said by from_positions)
+    scratch = LoadOptions(rate=1.0, time_unit="s", columns=None)
+    try:
+        own = "gyro" in _extract(content, ("acc", "gyro"), scratch)
+    except ImucalError:
+        own = False
+    if own:
+        raise ImucalError(f"has a gyroscope of its own, and --gyro {display_name(paths[1])} "
+                          "names another; drop --gyro to use the file's own, or give a file "
+                          "with the accelerometer alone", source=display_name(paths[0]),
+                          field="--gyro")
 
 
 def _check_file(path: Path, log: bool = False) -> None:

@@ -86,3 +86,46 @@ def test_calibrate_never_removes_a_sidecar_name_it_did_not_write(tmp_path, sampl
     assert rc == 1 and "cal.gyro.csv" in err and "did not write it" in err
     assert mine.read_text() == "t,gx\n0,0\n"
     assert not (tmp_path / "c.json").exists()
+
+
+# --- contradictory inputs: refused before any work ---------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def two_files(tmp_path_factory) -> dict[str, Path]:
+    """A session as one table with both sensors, and as an accelerometer and a gyroscope file."""
+    import numpy as np
+
+    from imucal.io.export import write_session_csv
+
+    d = tmp_path_factory.mktemp("two_files")
+    sess, _ = make_session(poses=6, seed=1)
+    write_session_csv(d / "both.csv", sess)
+    np.savetxt(d / "acc.csv", np.column_stack([sess.t_acc, sess.acc]), delimiter=",",
+               header="t,ax,ay,az", comments="")
+    np.savetxt(d / "gyr.csv", np.column_stack([sess.t_gyro, sess.gyro]), delimiter=",",
+               header="t,gx,gy,gz", comments="")
+    return {p.name: p for p in d.iterdir()}
+
+
+@pytest.mark.parametrize(("session", "gyro", "more", "needle"), [
+    ("acc.csv", "gyr.csv", ["--acc-only"], "acc.csv: --gyro: --acc-only calibrates the "
+     "accelerometer alone, but --gyro gyr.csv names a gyroscope"),
+    ("acc.csv", "acc.csv", [], "acc.csv: --gyro: is the session file itself"),
+    ("both.csv", "gyr.csv", [], "both.csv: --gyro: has a gyroscope of its own, and --gyro "
+     "gyr.csv names another"),
+])
+def test_contradictory_inputs_are_refused(tmp_path, two_files, session, gyro, more, needle):
+    for command in (["calibrate", two_files[session], "--out", tmp_path / "c.json"],
+                    ["noise", two_files[session], "--gyro-unit", "rad/s"]):
+        rc, out, err = run([*command, "--gyro", two_files[gyro], *more])
+        assert rc == 1 and err.count("\n") == 1 and needle in err, err
+        assert "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_two_file_session_still_loads(two_files):
+    from imucal.io.load import load_session
+
+    sess = load_session(two_files["acc.csv"], gyro_path=two_files["gyr.csv"])
+    assert sess.has_gyro and len(sess.gyro) == len(sess.acc)
