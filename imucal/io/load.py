@@ -97,6 +97,10 @@ def load_session(
     acc_unit = check_unit_arg(acc_unit, ACC_UNIT_KEYS, "acc_unit", source)
     gyro_unit = check_unit_arg(gyro_unit, GYRO_UNIT_KEYS, "gyro_unit", source)
     select = check_select(select, source)
+    if acc_only and select.get("gyro") is not None:
+        raise ImucalError(f"--acc-only calibrates the accelerometer alone, but --gyro "
+                          f"{select['gyro']} names a gyroscope; give one or the other",
+                          source=source, field="--gyro")
     log = log_format(paths[0]) if len(paths) == 1 else None
     if log is None and select.get("gyro") is not None and gyro_path is None:
         # --gyro beside a table names the gyroscope's file (one that is not there: said below)

@@ -129,3 +129,12 @@ def test_a_two_file_session_still_loads(two_files):
 
     sess = load_session(two_files["acc.csv"], gyro_path=two_files["gyr.csv"])
     assert sess.has_gyro and len(sess.gyro) == len(sess.acc)
+
+
+def test_acc_only_with_a_gyroscope_stream_is_refused(two_files):
+    from imucal.errors import ImucalError
+    from imucal.io.load import load_session
+
+    with pytest.raises(ImucalError, match="--acc-only calibrates the accelerometer alone, but "
+                                          "--gyro /imu/gyro names a gyroscope"):
+        load_session(two_files["both.csv"], acc_only=True, select={"gyro": "/imu/gyro"})
