@@ -22,87 +22,34 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import hashlib
 import os
 import re
 import secrets
 import signal
-import stat
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from imucal.errors import ImucalError
+from imucal.io import beside as bs
+from imucal.io.beside import OWNER_SUFFIX, PREFIX, owner_record
 from imucal.io.targets import check_output_path, refuse
 
 __all__ = ["OWNER_SUFFIX", "PREFIX", "Transaction", "atomic_path", "check_output_path", "held_back",
-           "io_problem", "write_atomic", "write_text_atomic"]
+           "io_problem", "owner_record", "write_atomic", "write_text_atomic"]
 
 try:
     import fcntl
 except ImportError:  # not POSIX: still one transaction, without the lock against another run
     fcntl = None
 
-PREFIX = ".imucal-"  # temporaries, backups and lock files: hidden, and short whatever the target
-OWNER_SUFFIX = ".owner"  # the record that imucal wrote an ``owned`` target (kept with it)
 _HELD_BACK = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP")
                    if hasattr(signal, n))
 _RUST_IO = re.compile(r"\(os error (\d+)\)")  # how Rust's io::Error (polars, rerun) ends
 
 
 # --- temporaries -------------------------------------------------------------------------------
-
-
-def _tag(target: Path) -> str:
-    """A short name of one target, the same in every run: its lock file's and its
-    temporaries' (so a run holding the lock knows a killed run's leftovers)."""
-    return hashlib.sha256(os.fsencode(target.name)).hexdigest()[:12]
-
-
-def _mode_for(target: Path) -> int:
-    """A replacement keeps the permissions of the file it replaces; a new file gets what a
-    plain open() would give it."""
-    with contextlib.suppress(OSError):
-        return stat.S_IMODE(os.stat(target).st_mode)
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-def _new_temp(target: Path, *, tagged: bool) -> Path:
-    """An empty file beside ``target``: ``.imucal-TAG-RANDOM.csv`` for a transaction (the
-    target's suffix, which writers read the format from; TAG names the target, see
-    :func:`_tag`), ``.imucal-RANDOM.tmp`` for :func:`atomic_path`."""
-    suffix = target.suffix if 0 < len(target.suffix) <= 16 else ""
-    mode = _mode_for(target)
-    while True:
-        rand = secrets.token_hex(4)
-        name = f"{_tag(target)}-{rand}{suffix}" if tagged else f"{rand}.tmp"
-        tmp = target.parent / f"{PREFIX}{name}"
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
-        except FileExistsError:
-            continue
-        try:
-            os.fchmod(fd, mode)
-        finally:
-            os.close(fd)
-        return tmp
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _unlink(path: Path | None) -> None:
-    if path is not None:
-        with contextlib.suppress(OSError):
-            os.unlink(path)
 
 
 def io_problem(e: BaseException) -> str | None:
@@ -147,12 +94,16 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success, remove it on
     any error or interrupt. ``path`` is checked first (:func:`check_output_path`)."""
     target = check_output_path(path)
-    tmp = _new_temp(target, tagged=False)
+    tmp = bs.new_temp(target, tagged=False)
     try:
         yield tmp
         os.replace(tmp, target)
-    except BaseException:
-        _unlink(tmp)
+    except BaseException as e:
+        bs.unlink(tmp)
+        why = io_problem(e) if isinstance(e, Exception) and not isinstance(e, ImucalError) else None
+        if why is not None:  # a full disk, say, and the file it stopped (issue 27)
+            raise ImucalError(f"could not be written: {why}; the previous file, if any, is "
+                              "unchanged", source=os.fspath(path)) from None
         raise
 
 
@@ -169,42 +120,6 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
             os.fsync(f.fileno())
 
     write_atomic(path, _w)
-
-
-# --- ownership records -------------------------------------------------------------------------
-
-
-def owner_record(target: Path) -> Path:
-    """Where the record that imucal wrote ``target`` lives (short whatever the name)."""
-    return target.parent / f"{PREFIX}{_tag(target)}{OWNER_SUFFIX}"
-
-
-def _record_line(path: Path, name: str) -> bytes:
-    """``path``'s SHA-256 as sha256sum prints it, for the file called ``name``."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(1 << 20):
-            h.update(block)
-    return h.hexdigest().encode() + b"  " + os.fsencode(name) + b"\n"
-
-
-def written_by_imucal(target: Path) -> bool:
-    """Whether ``target`` is, byte for byte, the file an imucal run left there (its record
-    beside it says so)."""
-    try:
-        record = owner_record(target).read_bytes()
-        return stat.S_ISREG(os.lstat(target).st_mode) and record == _record_line(target,
-                                                                               target.name)
-    except OSError:
-        return False
-
-
-def _identity(path: Path) -> tuple | None:
-    try:
-        st = os.lstat(path)
-    except FileNotFoundError:
-        return None
-    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 
 # --- the transaction ---------------------------------------------------------------------------
@@ -283,7 +198,7 @@ class Transaction:
         with held_back():
             if not self.committed:
                 for out in self._outputs:
-                    _unlink(out.tmp)
+                    bs.unlink(out.tmp)
                     out.tmp = None
             self._release()
 
@@ -292,7 +207,7 @@ class Transaction:
     def _lock(self, out: _Output) -> None:
         if fcntl is None:
             return
-        lock = out.target.parent / f"{PREFIX}{_tag(out.target)}.lock"
+        lock = out.target.parent / f"{PREFIX}{bs.tag(out.target)}.lock"
         while True:
             try:
                 fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
@@ -317,15 +232,15 @@ class Transaction:
             os.close(fd)
         out.lock_fd, out.lock = fd, lock
         # Holding the lock, any temporary of this target is a killed run's leftover.
-        for old in out.target.parent.glob(f"{PREFIX}{_tag(out.target)}-*"):
-            _unlink(old)
+        for old in out.target.parent.glob(f"{PREFIX}{bs.tag(out.target)}-*"):
+            bs.unlink(old)
 
     @staticmethod
     def _check_owned(out: _Output) -> None:
         """Refuse, before any work, to replace or remove a file the user did not name and
         imucal did not write (held under the lock: another run cannot be writing it)."""
-        out.seen = _identity(out.target)
-        if out.seen is not None and not written_by_imucal(out.target):
+        out.seen = bs.identity(out.target)
+        if out.seen is not None and not bs.written_by_imucal(out.target):
             raise ImucalError(f"exists and imucal did not write it, but this run would replace "
                               f"or remove it ({out.owned}); move it away or choose another "
                               "output name", source=out.shown)
@@ -333,7 +248,7 @@ class Transaction:
     def _release(self) -> None:
         for out in self._outputs:
             if out.lock_fd is not None:
-                _unlink(out.lock)  # while still locked: see _lock
+                bs.unlink(out.lock)  # while still locked: see _lock
                 os.close(out.lock_fd)
                 out.lock_fd = out.lock = None
 
@@ -351,7 +266,7 @@ class Transaction:
         target's suffix, the permissions of the file it will replace)."""
         out = self._find(path)
         if out.tmp is None:
-            out.tmp = _new_temp(out.target, tagged=True)
+            out.tmp = bs.new_temp(out.target, tagged=True)
         return out.tmp
 
     @contextlib.contextmanager
@@ -380,7 +295,7 @@ class Transaction:
         temporary: a sidecar file). Registered before the writer runs, so that a failure
         removes it; if nothing is there at commit, commit removes a previous ``path``."""
         out = self._find(path)
-        _unlink(out.tmp)
+        bs.unlink(out.tmp)
         out.tmp, out.expected = written, True
 
     def shown(self, path: str | os.PathLike) -> str:
@@ -405,8 +320,8 @@ class Transaction:
                 raise RuntimeError(f"output not written: {out.shown}")
             else:
                 with self._failing_as(out):
-                    _fsync(out.tmp)
-                    os.chmod(out.tmp, _mode_for(out.target))
+                    bs.fsync(out.tmp)
+                    os.chmod(out.tmp, bs.mode_for(out.target))
             if out.record is not None:
                 self._prepare_record(out)
         with held_back():
@@ -421,28 +336,28 @@ class Transaction:
                                   "was changed", source=backups[-1][0].shown) from None
             finally:
                 for _, b, _ in backups:
-                    _unlink(b)
+                    bs.unlink(b)
             self.committed = True
             for d in {o.target.parent for o in self._outputs}:
                 with contextlib.suppress(OSError):
-                    _fsync(d)
+                    bs.fsync(d)
 
     def _prepare_record(self, out: _Output) -> None:
         """The record of an owned output goes with it: written for a new file, removed with a
         removed one. A file put at the name by something else during the run is refused."""
-        if _identity(out.target) != out.seen:
+        if bs.identity(out.target) != out.seen:
             raise ImucalError("was changed by something else during the run; no output was "
                               "changed", source=out.shown)
         rec = out.record
-        _unlink(rec.tmp)
+        bs.unlink(rec.tmp)
         rec.tmp = None
         if out.remove:
             rec.remove = True
             return
-        rec.tmp = _new_temp(rec.target, tagged=True)
+        rec.tmp = bs.new_temp(rec.target, tagged=True)
         with self._failing_as(rec):
             with open(rec.tmp, "wb") as f:
-                f.write(_record_line(out.tmp, out.target.name))
+                f.write(bs.record_line(out.tmp, out.target.name))
                 f.flush()
                 os.fsync(f.fileno())
 
@@ -452,7 +367,7 @@ class Transaction:
         whether there was one."""
         if not out.target.exists():
             return None, False
-        b = out.target.parent / f"{PREFIX}{_tag(out.target)}-{secrets.token_hex(4)}.bak"
+        b = out.target.parent / f"{PREFIX}{bs.tag(out.target)}-{secrets.token_hex(4)}.bak"
         try:
             os.link(out.target, b)
         except OSError:  # no hard links here: the rename still happens, without a way back
@@ -467,7 +382,7 @@ class Transaction:
                 out.removed = True
         elif out.exclusive:
             os.link(out.tmp, out.target)  # EEXIST if the name was taken meanwhile
-            _unlink(out.tmp)
+            bs.unlink(out.tmp)
         else:
             os.replace(out.tmp, out.target)
         out.tmp = None

@@ -25,6 +25,7 @@ from imucal.errors import ImucalError
 from imucal.io.column_names import ALL_ROLES, LABELS
 from imucal.io.file_contents import Table, Variables
 from imucal.io.file_facts import FileFacts, read_facts
+from imucal.io.input_files import check_file, check_gyro_file
 from imucal.io.load_mat5_pool import usable_threads
 from imucal.io.logs import check_select, choose_streams, log_format
 from imucal.io.mat_layout import from_variables
@@ -33,7 +34,7 @@ from imucal.io.readers import display_name, read_file
 from imucal.io.select import describe, parts_of
 from imucal.io.spill import Spill, SpillPolicy, contiguous, elementwise
 from imucal.io.table_layout import from_names, from_positions
-from imucal.io.time_base import MAX_RATE_HZ, own_rows, settle_time
+from imucal.io.time_base import MAX_RATE_HZ, MIN_RATE_HZ, own_rows, settle_time
 from imucal.io.units import (
     ACC_UNIT_KEYS,
     GYRO_UNIT_KEYS,
@@ -49,8 +50,6 @@ from imucal.stages.sanity import one_rate_pairing
 from imucal.streams import UNITS, Stream
 
 __all__ = ["load_session"]
-
-MAX_FILE_BYTES = 2 * 1024**3
 
 _CHUNK = 1 << 20
 
@@ -111,7 +110,7 @@ def load_session(
                           "a DataFlash log); this file is a table: map its columns with "
                           "--columns", source=source, field="--acc")
     for p in paths:
-        _check_file(p, log is not None)
+        check_file(p, log is not None)
     check_gyro_file(paths, acc_only)
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
@@ -240,10 +239,10 @@ def _check_rate(rate: float | None, source: str) -> float | None:
     except (TypeError, ValueError):
         raise ImucalError(f"sample rate must be a number of Hz, got {rate!r}",
                           source=source, field="rate") from None
-    if not math.isfinite(value) or value <= 0 or value > MAX_RATE_HZ:
+    if not math.isfinite(value) or not MIN_RATE_HZ <= value <= MAX_RATE_HZ:
         raise ImucalError(
-            f"sample rate must be a finite number of Hz in (0, {MAX_RATE_HZ:g}], got {rate!r}",
-            source=source, field="rate",
+            f"sample rate must be a number of Hz from {MIN_RATE_HZ:.4g} (one sample a minute) to "
+            f"{MAX_RATE_HZ:g}, got {rate!r}", source=source, field="rate",
         )
     return value
 
@@ -266,25 +265,6 @@ def _check_columns(columns: Mapping[str, str | int] | None, source: str) -> dict
     return dict(columns)
 
 
-def check_gyro_file(paths: list[Path], acc_only: bool) -> None:
-    """Contradictions of a gyroscope's file, refused before anything is read (issue 27):
-    --acc-only with one, and the session's own file given again as its gyroscope."""
-    if len(paths) < 2:
-        return
-    if acc_only:
-        raise ImucalError(f"--acc-only calibrates the accelerometer alone, but --gyro "
-                          f"{display_name(paths[1])} names a gyroscope; give one or the other",
-                          source=display_name(paths[0]), field="--gyro")
-    try:
-        same = os.path.samefile(paths[0], paths[1])
-    except OSError:
-        same = False
-    if same:
-        raise ImucalError("is the session file itself; a file with both sensors needs "
-                          "no --gyro, and a two-file session names the gyroscope's file",
-                          source=display_name(paths[1]), field="--gyro")
-
-
 def _no_gyro_of_its_own(content: Table | Variables, paths: list[Path]) -> None:
     """A session file with a gyroscope of its own and a --gyro file beside it: which one is
     meant cannot be told; refused rather than one silently dropped (issue 27). Found by the
@@ -301,28 +281,6 @@ def _no_gyro_of_its_own(content: Table | Variables, paths: list[Path]) -> None:
                           "names another; drop --gyro to use the file's own, or give a file "
                           "with the accelerometer alone", source=display_name(paths[0]),
                           field="--gyro")
-
-
-def _check_file(path: Path, log: bool = False) -> None:
-    """A file that exists and can be read; a log of many streams (``log``) may be a ROS 2 bag's
-    folder, and may be larger than a table, as only its chosen streams are read."""
-    name = display_name(path)
-    try:
-        st = path.stat()
-    except FileNotFoundError:
-        where = "" if str(path) == name else f" (looked at {path})"
-        raise ImucalError(f"file not found{where}", source=name) from None
-    except OSError as exc:
-        raise ImucalError(f"cannot access the file ({exc.strerror})", source=name) from None
-    if log:
-        return
-    if path.is_dir():
-        raise ImucalError("is a directory; expected a data file", source=name)
-    if st.st_size == 0:
-        raise ImucalError("the file is empty; expected IMU samples", source=name)
-    if st.st_size > MAX_FILE_BYTES:
-        raise ImucalError(f"the file is {st.st_size / 2**30:.1f} GiB; files over 2 GiB are not "
-                          "loaded (split the recording)", source=name)
 
 
 def _sha256_soon(paths: list[Path], threads: int) -> Callable[[], str]:

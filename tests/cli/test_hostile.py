@@ -138,3 +138,157 @@ def test_acc_only_with_a_gyroscope_stream_is_refused(two_files):
     with pytest.raises(ImucalError, match="--acc-only calibrates the accelerometer alone, but "
                                           "--gyro /imu/gyro names a gyroscope"):
         load_session(two_files["both.csv"], acc_only=True, select={"gyro": "/imu/gyro"})
+
+
+# --- messages and exit codes (the README's contract) -------------------------------------------
+
+
+def test_a_rate_no_imu_records_is_a_usage_error(tmp_path, two_files):
+    rc, _, err = run(["calibrate", two_files["acc.csv"], "--acc-only", "--rate", "1e-300",
+                      "--out", tmp_path / "c.json"])
+    assert rc == 2 and "--rate" in err and "one sample a minute" in err  # was exit 3
+
+
+def test_turns_too_fast_for_the_sample_period_are_one_line(tmp_path):
+    """Timestamps ten times too coarse for the turns: RK4 overflows; said as the data's, exit 1
+    (was an internal error, exit 3)."""
+    import numpy as np
+
+    sess, _ = make_session(poses=6, seed=1)
+    path = tmp_path / "slow.txt"
+    np.savetxt(path, np.column_stack([sess.acc, sess.gyro])[:3000])
+    rc, _, err = run(["calibrate", path, "--rate", "0.1", "--acc-unit", "g", "--gyro-unit",
+                      "rad/s", "--out", tmp_path / "c.json"])
+    assert rc == 1 and err.count("\n") == 1
+    assert "the turns cannot be integrated" in err and "check --rate" in err
+
+
+@pytest.mark.parametrize(("path", "what"), [("/dev/zero", "character device"),
+                                            ("/dev/urandom", "character device"),
+                                            ("FIFO", "FIFO (named pipe)")])
+def test_devices_and_fifos_are_said_as_such(tmp_path, path, what):
+    if path == "FIFO":
+        path = tmp_path / "f.csv"
+        os.mkfifo(path)  # no writer: a reader that opened it would wait forever
+
+    def stuck(signum, frame):
+        raise TimeoutError("blocked reading the FIFO (it was opened)")
+
+    previous = signal.signal(signal.SIGALRM, stuck)
+    signal.alarm(30)
+    try:
+        for command in (["calibrate", path, "--out", tmp_path / "c.json"], ["noise", path]):
+            rc, _, err = run(command)
+            assert rc == 1 and f"is a {what}" in err and "empty" not in err, err
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _read(path: Path):
+    from imucal.io.load import load_session
+
+    return load_session(path, gyro_unit="rad/s")
+
+
+def test_cr_line_endings_and_comment_lines_are_read(tmp_path, two_files):
+    import numpy as np
+
+    from imucal.errors import ImucalError
+
+    text = two_files["both.csv"].read_bytes()
+    ref = _read(two_files["both.csv"])
+    (tmp_path / "cr.csv").write_bytes(text.replace(b"\n", b"\r"))  # classic Mac OS
+    lines = text.split(b"\n")
+    commented = [b"# logger v2", lines[0], b"# pose 1", *lines[1:500], b"  # pose 2",
+                 *lines[500:]]
+    (tmp_path / "comments.csv").write_bytes(b"\n".join(commented))
+    for name in ("cr.csv", "comments.csv"):
+        sess = _read(tmp_path / name)
+        assert np.array_equal(sess.acc, ref.acc) and np.array_equal(sess.gyro, ref.gyro)
+        assert np.array_equal(sess.t_acc, ref.t_acc)
+    assert any("2 comment lines (#) among the rows skipped" in n for n in
+               _read(tmp_path / "comments.csv").notes)
+    # A ragged row after the comments is still named by its own line number.
+    commented[700] = b"1,2,3"
+    (tmp_path / "ragged.csv").write_bytes(b"\n".join(commented))
+    with pytest.raises(ImucalError, match="line 701 has 3 fields, expected 7"):
+        _read(tmp_path / "ragged.csv")
+
+
+def _unprivileged() -> list[str] | None:
+    """A command prefix that runs without the power to read any file, or None."""
+    import shutil
+
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    return None if setpriv is None else [setpriv, "--bounding-set",
+                                         "-dac_override,-dac_read_search"]
+
+
+def _imucal() -> str:
+    import shutil
+    import sys
+
+    return shutil.which("imucal", path=str(Path(sys.executable).parent)) or "imucal"
+
+
+def test_an_unreadable_file_is_exit_1_naming_it(tmp_path, two_files):
+    import subprocess
+
+    prefix = _unprivileged()
+    if prefix is None:
+        pytest.skip("root without setpriv: every file is readable")
+    path = tmp_path / "locked.csv"
+    path.write_bytes(two_files["both.csv"].read_bytes())
+    path.chmod(0)
+    env = {k: v for k, v in os.environ.items() if k != "IMUCAL_DEBUG"}
+    for command in (["calibrate", path, "--out", tmp_path / "c.json"], ["noise", path],
+                    ["export", path, "--to", "px4"]):
+        proc = subprocess.run([*prefix, _imucal(), *map(str, command)], capture_output=True,
+                              text=True, env=env, timeout=120)
+        assert proc.returncode == 1, proc.stderr  # was 2, a usage error
+        line, = proc.stderr.strip().splitlines()
+        assert line.startswith("imucal: error: ") and line.endswith(
+            "locked.csv: cannot be read (Permission denied)"), line
+
+
+def test_a_full_disk_names_the_file(tmp_path):
+    """imucal synth through write_atomic: the limit on a file's size stops the write (EFBIG,
+    as a full disk's ENOSPC would); the line names the file (it did not)."""
+    import resource
+    import subprocess
+
+    proc = subprocess.run([_imucal(), "synth", "s.mat", "--poses", "12"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120,
+                          preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE,
+                                                                (20_000, 20_000)))
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [
+        "imucal: error: s.mat: could not be written: File too large; the previous file, if "
+        "any, is unchanged"], proc.stderr
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("compress", [False, True])
+@pytest.mark.parametrize(("var", "make", "what"), [
+    ("acc", lambda a: a.astype(complex), "complex numbers"),
+    ("acc", lambda a: __import__("scipy.sparse").sparse.csc_matrix(a), "a sparse matrix"),
+    ("gyro", lambda a: __import__("scipy.sparse").sparse.csc_matrix(a), "a sparse matrix"),
+    ("acc", lambda a: "text", "text (char)"),
+])
+def test_a_mat_variable_that_is_not_real_numbers_is_said(tmp_path, var, make, what, compress):
+    from scipy.io import savemat
+
+    from imucal.errors import ImucalError
+    from imucal.io.load import load_session
+
+    sess, _ = make_session(poses=4, seed=1)
+    data = {"acc": sess.acc, "gyro": sess.gyro, "t": sess.t_acc}
+    data[var] = make(data[var])
+    savemat(tmp_path / "s.mat", data, do_compression=compress)
+    with pytest.raises(ImucalError) as e:
+        load_session(tmp_path / "s.mat")
+    assert str(e.value).startswith(f"s.mat: {var}: the variable {var!r} holds {what}, not real "
+                                   "numbers")
