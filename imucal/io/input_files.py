@@ -11,12 +11,11 @@ from pathlib import Path
 from imucal.errors import ImucalError
 from imucal.io.readers import display_name
 
-MAX_FILE_BYTES = 2 * 1024**3
 
-
-def check_file(path: Path, log: bool = False) -> None:
-    """A file that exists and can be read; a log of many streams (``log``) may be a ROS 2 bag's
-    folder, and may be larger than a table, as only its chosen streams are read."""
+def check_file(path: Path, log: bool, max_bytes: int) -> None:
+    """A file that exists and can be read, of at most ``max_bytes``; a log of many streams
+    (``log``) may be a ROS 2 bag's folder, and may be larger than a table, as only its chosen
+    streams are read."""
     name = display_name(path)
     try:
         st = path.stat()
@@ -32,7 +31,7 @@ def check_file(path: Path, log: bool = False) -> None:
         raise ImucalError("is a directory; expected a data file", source=name)
     if st.st_size == 0:
         raise ImucalError("the file is empty; expected IMU samples", source=name)
-    if st.st_size > MAX_FILE_BYTES:
+    if st.st_size > max_bytes:
         raise ImucalError(f"the file is {st.st_size / 2**30:.1f} GiB; files over 2 GiB are not "
                           "loaded (split the recording)", source=name)
 

@@ -51,6 +51,8 @@ from imucal.streams import UNITS, Stream
 
 __all__ = ["load_session"]
 
+MAX_FILE_BYTES = 2 * 1024**3
+
 _CHUNK = 1 << 20
 
 
@@ -110,7 +112,7 @@ def load_session(
                           "a DataFlash log); this file is a table: map its columns with "
                           "--columns", source=source, field="--acc")
     for p in paths:
-        check_file(p, log is not None)
+        check_file(p, log is not None, MAX_FILE_BYTES)
     check_gyro_file(paths, acc_only)
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)

@@ -31,6 +31,13 @@ from imucal.stages.apply import CalibratedSignals
 AXES = ("x", "y", "z")
 STEP_ROWS = 1 << 16  # times read at once for the steps inside the blocks
 MAX_STILL_DRIFT = 0.01  # of |g|: above it the recording is not still (see StreamingNoise)
+# unit of the signal -> (white noise density, random walk) units
+DENSITY_UNITS = {
+    "g": ("g/sqrt(Hz)", "g/s/sqrt(Hz)"),
+    "m/s^2": ("m/s^2/sqrt(Hz)", "m/s^3/sqrt(Hz)"),
+    "rad/s": ("rad/s/sqrt(Hz)", "rad/s^2/sqrt(Hz)"),
+    "counts": ("counts/sqrt(Hz)", "counts/s/sqrt(Hz)"),
+}
 # What is not still in a still recording (a knock, a bump, someone picking it up) is found and
 # left out before the Allan variance: one 3 g knock of five samples in 20 minutes raised the
 # white noise density 12.6 times (issue 27). A sample is not still when it lies more than
@@ -42,13 +49,6 @@ STILL_SIGMAS = 8.0
 STILL_BLOCK_S = 1.0
 STILL_MARGIN_S = 0.5
 MAX_MOTION = 0.5  # of the samples: a recording more not still than still is refused
-# unit of the signal -> (white noise density, random walk) units
-DENSITY_UNITS = {
-    "g": ("g/sqrt(Hz)", "g/s/sqrt(Hz)"),
-    "m/s^2": ("m/s^2/sqrt(Hz)", "m/s^3/sqrt(Hz)"),
-    "rad/s": ("rad/s/sqrt(Hz)", "rad/s^2/sqrt(Hz)"),
-    "counts": ("counts/sqrt(Hz)", "counts/s/sqrt(Hz)"),
-}
 
 
 @dataclass(frozen=True)
@@ -326,14 +326,6 @@ class StreamingNoise:
     def report(self, source: str) -> NoiseReport:
         out: dict[str, SensorNoise | None] = {"accelerometer": None, "gyroscope": None}
         notes = []
-        if self.stretches[0]:
-            count, seconds, first = self.stretches
-            notes.append(f"left out {int(count)} stretch{'es' if count != 1 else ''} that "
-                         f"{'are' if count != 1 else 'is'} not still (a knock or motion: "
-                         f"{100 * self.moving_fraction():.2g} % of the samples, {seconds:.3g} s "
-                         f"with {STILL_MARGIN_S:g} s either side; the first at t = {first:.6g} "
-                         "s); the figures are from the still rest, no Allan cluster spans a "
-                         "gap")
         for sensor, c in self.clock.items():
             t0, t1, n, _step, gaps = c
             if n < 2 or t1 <= t0:
@@ -355,5 +347,13 @@ class StreamingNoise:
                                  "measure the motion")
             if len(curve.lags):
                 out[sensor] = sensor_noise(sensor, self.units[sensor] or "", rate, curve)
+        if self.stretches[0]:
+            count, seconds, first = self.stretches
+            notes.append(f"left out {int(count)} stretch{'es' if count != 1 else ''} that "
+                         f"{'are' if count != 1 else 'is'} not still (a knock or motion: "
+                         f"{100 * self.moving_fraction():.2g} % of the samples, {seconds:.3g} s "
+                         f"with {STILL_MARGIN_S:g} s either side; the first at t = {first:.6g} "
+                         "s); the figures are from the still rest, no Allan cluster spans a "
+                         "gap")
         return NoiseReport(accelerometer=out["accelerometer"], gyroscope=out["gyroscope"],
                            source=source, notes=tuple(notes))
