@@ -160,7 +160,8 @@ def run_job(job: Job) -> dict[str, Any]:
             row |= {"spec_pass": verdict.passed, "spec_broken": verdict.broken,
                     "spec_unchecked": verdict.unchecked}
         doc = result_to_dict(result) | {
-            "device": job.identity.device, "session": row["session"],
+            "device": job.identity.device, "device_named": job.identity.named,
+            "session": row["session"],
             "calibrated_at": row["calibrated_at"].isoformat(),
             "recorded_at": None if row["recorded_at"] is None else row["recorded_at"].isoformat(),
             "settings_hash": job.settings_hash}

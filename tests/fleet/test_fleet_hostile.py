@@ -77,3 +77,46 @@ def test_one_folder_is_one_device(tmp_path, started):
     jobs, bad = batch.plan(files, tmp_path / "out", device_from=None, load_kw={}, settings={},
                            spec=None)
     assert bad == [] and [j.identity.device for j in jobs] == ["IMU_1", "IMU_1", "IMU_2"]
+
+
+@pytest.fixture(scope="module")
+def calib_doc(tmp_path_factory) -> dict:
+    import json
+
+    from imucal.io.calibration_file import save_calibration
+    from imucal.pipeline import calibrate
+    from imucal.synth import make_session
+
+    path = tmp_path_factory.mktemp("calib") / "c.json"
+    sess, _ = make_session(poses=12, seed=4, still=2.5, move=1.0, init_still=4.0)
+    save_calibration(calibrate(sess), path)
+    return json.loads(path.read_text())
+
+
+def _batch_file(tmp_path: Path, doc: dict, named: str, when: str) -> Path:
+    import json
+
+    path = tmp_path / f"{len(list(tmp_path.iterdir()))}.calib.json"
+    path.write_text(json.dumps(doc | {"device": "IMU_1", "device_named": named,
+                                      "calibrated_at": when}))
+    return path
+
+
+def test_the_store_never_merges_two_units_of_one_id(tmp_path, calib_doc):
+    """Batch runs on different days: folder 'IMU 1' then folder 'IMU_1' both make IMU_1."""
+    from imucal.fleet.store import add, calibrations
+
+    store = tmp_path / "store"
+    (tmp_path / "in").mkdir()
+    first = _batch_file(tmp_path / "in", calib_doc, "IMU 1", "2024-05-01T10:00:00+00:00")
+    again = _batch_file(tmp_path / "in", calib_doc, "IMU 1", "2024-06-01T10:00:00+00:00")
+    other = _batch_file(tmp_path / "in", calib_doc, "IMU_1", "2024-07-01T10:00:00+00:00")
+    assert add(store, first).device == "IMU_1"
+    assert add(store, again, "IMU_1").device == "IMU_1"  # the same unit, as batch adds it
+    with pytest.raises(ImucalError) as e:
+        add(store, other, "IMU_1")
+    msg = str(e.value)
+    assert "\n" not in msg and "two units would be merged" in msg
+    assert "'IMU 1'" in msg and "'IMU_1'" in msg and msg.startswith(str(other))
+    assert len(calibrations(store, "IMU_1")) == 2
+    assert add(store, other, "IMU_1b").device == "IMU_1b"  # named apart by the user
