@@ -160,21 +160,31 @@ def _what_is(value: object) -> str:
 def _read_hdf5(path: Path) -> Variables:
     import h5py
 
-    found = {}
+    found, skipped = {}, {}
     with h5py.File(path, "r") as f:
         for name, item in f.items():
-            if not isinstance(item, h5py.Dataset) or name.startswith("#"):
+            if name.startswith("#"):
                 continue
             cls = item.attrs.get("MATLAB_class")
             cls = cls.decode() if isinstance(cls, bytes) else cls
+            if not isinstance(item, h5py.Dataset):  # MATLAB v7.3 keeps these as groups
+                if "MATLAB_sparse" in item.attrs or cls == "struct":
+                    skipped[name] = "a sparse matrix" if cls != "struct" else "a struct"
+                continue
             if cls in ("char", "logical", "cell", "struct") or "MATLAB_empty" in item.attrs:
+                skipped[name] = {"char": "text (char)", "logical": "logical values",
+                                 "cell": "a cell array", "struct": "a struct"}.get(cls, "empty")
+                continue
+            names = item.dtype.names or ()
+            if "real" in names and "imag" in names:  # how MATLAB v7.3 stores complex numbers
+                skipped[name] = "complex numbers"
                 continue
             matrix = _as_matrix(item[()])
             if matrix is None:
                 continue
             # MATLAB writes column-major, so h5py sees every matrix transposed.
             found[name] = matrix.T if cls is not None else matrix
-    return Variables(path.name, found)
+    return Variables(path.name, found, skipped)
 
 
 def _read_parquet(path: Path) -> Table:

@@ -292,3 +292,33 @@ def test_a_mat_variable_that_is_not_real_numbers_is_said(tmp_path, var, make, wh
         load_session(tmp_path / "s.mat")
     assert str(e.value).startswith(f"s.mat: {var}: the variable {var!r} holds {what}, not real "
                                    "numbers")
+
+
+@pytest.mark.parametrize(("var", "what"), [("acc", "complex numbers"), ("gyro", "a sparse matrix")])
+def test_a_v73_variable_that_is_not_real_numbers_is_said(tmp_path, var, what):
+    """MATLAB v7.3 (HDF5): complex numbers as a compound of real and imag, a sparse matrix as a
+    group, as MATLAB writes them."""
+    import h5py
+    import numpy as np
+
+    from imucal.errors import ImucalError
+    from imucal.io.load import load_session
+
+    sess, _ = make_session(poses=4, seed=1)
+    with h5py.File(tmp_path / "s.mat", "w", userblock_size=512) as f:
+        for name, values in (("acc", sess.acc), ("gyro", sess.gyro), ("t", sess.t_acc)):
+            if name == var == "acc":
+                cplx = np.zeros((3, len(values)), dtype=[("real", "<f8"), ("imag", "<f8")])
+                cplx["real"] = values.T
+                f.create_dataset(name, data=cplx).attrs["MATLAB_class"] = np.bytes_("double")
+            elif name == var:
+                g = f.create_group(name)
+                g.attrs["MATLAB_class"] = np.bytes_("double")
+                g.attrs["MATLAB_sparse"] = 3
+                g.create_dataset("data", data=values.ravel())
+            else:
+                f.create_dataset(name, data=np.atleast_2d(values.T)).attrs["MATLAB_class"] = (
+                    np.bytes_("double"))
+    with pytest.raises(ImucalError) as e:
+        load_session(tmp_path / "s.mat")
+    assert str(e.value).startswith(f"s.mat: {var}: the variable {var!r} holds {what}, not real")
