@@ -262,6 +262,7 @@ _COUNT_SCALE = (1e-12, 10.0)  # calibrated units per count: any real sensor's re
 _SCALE_RATIO = 10.0  # a triad's axes have one sensitivity to a few percent
 _MAX_MISALIGNMENT = 1.0  # an off-diagonal of T beyond tan 45 deg is no misalignment
 _MAX_BIAS_SI = {"accelerometer": 10 * 9.80665, "gyroscope": 10.0}  # m/s^2, rad/s: no MEMS part
+_MAX_COUNT = 2.0**32  # raw counts: no converter gives more
 
 
 def check_plausible(cal: Calibration, source: str) -> None:
@@ -304,6 +305,12 @@ def _implausible(sensor: str, model, raw: str | None, out: str) -> tuple[str, st
                          f"{nominal:.4g}): are K and b swapped, or the units wrong?")
     elif not (_COUNT_SCALE[0] <= K.min() and K.max() <= _COUNT_SCALE[1]):
         return "K", f"K {_v(K)} {out} per count is no sensor's resolution"
+    if raw not in _SI:
+        # Raw counts: an unsigned ADC's zero sits mid-range (32768 counts: 16 g of a +-16 g
+        # part), so only a count no converter gives is refused.
+        if not np.all(np.abs(b) <= _MAX_COUNT):
+            return "b", f"bias b {_v(b)} counts is beyond any converter's range (2^32)"
+        return None
     with np.errstate(over="ignore", invalid="ignore"):  # 1e308: refused just below
         bias = model.matrix @ b
         bias_si = np.abs(bias) * _SI[out]

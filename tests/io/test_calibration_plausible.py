@@ -98,6 +98,13 @@ def test_a_good_calibration_and_counts_pass(tmp_path, good):
     counts = copy.deepcopy(good)
     counts["units"]["accelerometer_raw"] = "counts"
     counts["segments"][0]["accelerometer"]["K"] = [1 / 4096, 1 / 4100, 1 / 4090]
-    counts["segments"][0]["accelerometer"]["b"] = [120.0, -40.0, 300.0]  # counts: 0.07 g
+    # An unsigned 16-bit converter of a +-16 g part: its zero 32768 counts, 16 g once calibrated.
+    counts["segments"][0]["accelerometer"]["K"] = [1 / 2048, 1 / 2050, 1 / 2046]
+    counts["segments"][0]["accelerometer"]["b"] = [32768.0, 32700.0, 32900.0]
     path.write_text(json.dumps(counts))
     assert imucal.load_calibration(Path(path)).acc_unit_raw == "counts"
+    counts["segments"][0]["accelerometer"]["b"] = [1e308, 0, 0]
+    path.write_text(json.dumps(counts))
+    with pytest.raises(ImucalError, match="segments.0..accelerometer.b: bias b .* counts is "
+                                          "beyond any converter"):
+        imucal.load_calibration(path)
