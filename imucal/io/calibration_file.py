@@ -256,7 +256,7 @@ def calibration_from_dict(data: dict, source: str = "calibration") -> Calibratio
 # of a calibration file comes through calibration_from_dict, so apply and every export refuse
 # what calibrate itself calls not physical. The bounds are wide: they catch a hand edit gone
 # wrong (a sign, K and b swapped, the two sensors' models swapped, 1e308), not a poor sensor.
-_SI = {"g": 9.80665, "m/s^2": 1.0, "rad/s": 1.0, "deg/s": math.pi / 180}
+_SI = {"g": 9.80665, "m/s^2": 1.0, "rad/s": 1.0, "deg/s": np.pi / 180}
 _SCALE_BAND = 10.0  # K within 1/10 to 10 times the units' own ratio (calibrate warns at 2)
 _COUNT_SCALE = (1e-12, 10.0)  # calibrated units per count: any real sensor's resolution
 _SCALE_RATIO = 10.0  # a triad's axes have one sensitivity to a few percent
