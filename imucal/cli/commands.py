@@ -127,7 +127,7 @@ def calibrate(
     from imucal.io.atomic import Transaction
 
     side = _sidecar(calibrated)
-    tx = Transaction([out, calibrated, side, rrd], inputs=inputs)
+    tx = Transaction([out, calibrated, side, rrd], inputs=inputs, owned=_owned(side, calibrated))
     save_recording = None
     if rrd is not None:
         with viewer_available():
@@ -216,6 +216,12 @@ def _sidecar(table: str | None) -> Path | None:
     return gyro_sidecar(Path(table))
 
 
+def _owned(side: Path | None, table: str | None) -> dict[Path, str]:
+    """The sidecar is a name the user did not give: imucal replaces or removes only a sidecar
+    it wrote itself (imucal.io.atomic, owned)."""
+    return {} if side is None else {side: f"the gyroscope table of {table}"}
+
+
 @app.command()
 @shared_options(APPLY_INPUT_OPTIONS)
 def apply(
@@ -240,7 +246,8 @@ def apply(
     check_inputs(inputs)
     from imucal.io.atomic import Transaction
 
-    tx = Transaction([out, _sidecar(out)], inputs=inputs)
+    side = _sidecar(out)
+    tx = Transaction([out, side], inputs=inputs, owned=_owned(side, out))
     progress = Progress(verbose)
     import imucal
 

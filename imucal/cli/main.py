@@ -55,6 +55,17 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+def _unreadable_is_the_readers(cli) -> None:
+    """click refuses an unreadable path argument as a usage error (exit 2); a file without
+    read permission is the user's data, not their usage: the reader reports it, exit 1 with
+    the file named (README's contract; issue 27)."""
+    for cmd in [cli, *getattr(cli, "commands", {}).values()]:
+        for sub in [cmd, *getattr(cmd, "commands", {}).values()]:
+            for param in sub.params:
+                if getattr(param.type, "readable", False) is True:  # click's (typer's) Path
+                    param.type.readable = False
+
+
 def main(argv: list[str] | None = None, *, command: str | None = None,
          prog: str = "imucal") -> int:
     """Run the command line; return the exit code (never a traceback for the user).
@@ -110,6 +121,7 @@ def _main(argv: list[str] | None, *, command: str | None, prog: str) -> int:
         cli = _plain_usage(typer.main.get_command(app))
         if command is not None:
             cli = _as_program(cli, command)
+        _unreadable_is_the_readers(cli)
         rv = cli.main(args, prog_name=prog, standalone_mode=False)
         if rv == EXIT_INTERRUPTED:
             err("interrupted")

@@ -75,6 +75,17 @@ def positive(value: float | None) -> float | None:
     return value
 
 
+def sample_rate(value: float | None) -> float | None:
+    """--rate: positive, and a usage error (exit 2) below what any IMU records, which only
+    overflows the timestamps (issue 27); above the highest, the loader says so."""
+    from imucal.io.time_base import MIN_RATE_HZ
+
+    if positive(value) is not None and value < MIN_RATE_HZ:
+        raise typer.BadParameter(f"must be at least {MIN_RATE_HZ:.4g} Hz (one sample a minute), "
+                                 f"got {value:g}")
+    return value
+
+
 def ip_address(value: str) -> str:
     """An IPv4 or IPv6 address (what the viewer's ``--bind`` takes)."""
     import ipaddress
@@ -193,7 +204,7 @@ TempOpt = Annotated[str | None, typer.Option(
     help="The temperature stream of a log (checked to exist; recorded beside the "
          "calibration).")]
 RateOpt = Annotated[float | None, typer.Option(
-    "--rate", metavar="HZ", callback=positive, rich_help_panel=_IN,
+    "--rate", metavar="HZ", callback=sample_rate, rich_help_panel=_IN,
     help="Sample rate for files without a time column.")]
 AccUnitOpt = Annotated[str, typer.Option(
     "--acc-unit", metavar="g|m/s^2|counts|auto", rich_help_panel=_IN,

@@ -168,7 +168,8 @@ def run_job(job: Job) -> dict[str, Any]:
                 job.spec.source))
             row |= verdict_columns(result.verdict)
         doc = result_to_dict(result) | {
-            "device": job.identity.device, "session": row["session"],
+            "device": job.identity.device, "device_named": job.identity.named,
+            "session": row["session"],
             "calibrated_at": row["calibrated_at"].isoformat(),
             "recorded_at": None if row["recorded_at"] is None else row["recorded_at"].isoformat(),
             "settings_hash": job.settings_hash}
@@ -250,6 +251,7 @@ def plan(files: list[Path], out_dir: Path, *, device_from: str | None,
                                       "settings_hash": shash})
             continue
         found.append((path, ident, sha))
+    naming.check_distinct([(p, i) for p, i, _ in found])  # before any work
     names = naming.output_names([(i.device, naming.safe_name(p.stem), s) for p, i, s in found])
     jobs = [Job(path=str(p), out_dir=str(out_dir), name=n, identity=i, sha256=s,
                 settings_hash=shash, load_kw=load_kw, settings=settings, spec=spec)
@@ -313,6 +315,22 @@ def cluster_client(scheduler: str | None, workers: int) -> Iterator[tuple[Any, s
         yield client, f"LocalCluster of {workers} workers on 127.0.0.1"
 
 
+def local_workers(asked: int | None, sessions: int) -> tuple[int, str]:
+    """A LocalCluster's size: ``asked`` or one per core, never more than the cores or the
+    sessions to run (a worker more starts a process that only waits, and 1000 of them exhaust
+    the machine); and what was said about a cap (empty if none)."""
+    try:
+        cores = len(os.sched_getaffinity(0))  # the cores this process may use (containers)
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    limit = max(1, min(cores, sessions))
+    if asked is None or asked <= limit:
+        return asked or limit, ""
+    return limit, (f" (--workers {asked} capped at {limit}: {sessions} session"
+                   f"{'s' if sessions != 1 else ''} to run, {cores} "
+                   f"core{'s' if cores != 1 else ''})")
+
+
 def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
               settings: dict[str, Any], scheduler: str | None = None, workers: int | None = None,
               device_from: str | None = None, spec: Spec | None = None, force: bool = False,
@@ -320,7 +338,8 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
               store: Path | None = None) -> BatchReport:
     """Calibrate ``files`` on a cluster; write ``out_dir/summary.parquet``; return the rows.
 
-    ``workers`` (a LocalCluster's size) defaults to one per core, at most one per session.
+    ``workers`` (a LocalCluster's size) defaults to one per core, and is at most one per core
+    and one per session (:func:`local_workers`; the cap is said in ``cluster``).
     ``store``: add every calibrated session to that calibration store, as its result comes in
     (the sessions a rerun skips too: the store keeps one copy of each)."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -347,10 +366,11 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
     for row in rows if tally is not None else ():
         tally.add(row)
     where = "nothing to do"
-    workers = workers or max(1, min(os.cpu_count() or 1, len(todo)))
+    workers, capped = local_workers(workers, len(todo))
     if todo:
         with cluster_client(scheduler, workers) as (client, where):
             workers = len(client.scheduler_info().get("workers", {})) or workers
+            where += capped
             for row in _gather(client, todo, retries, counts, progress):
                 rows.append(row)
                 by_sha[row["sha256"]] = row

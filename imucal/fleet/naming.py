@@ -28,6 +28,7 @@ class Identity:
     device_from: str  # "pattern '...'" or "parent folder"
     recorded_at: datetime | None
     recorded_from: str  # "pattern {date}", "file modification time"
+    named: str = ""  # the text the device id was made from (a folder's name, a field)
 
 
 def compile_pattern(pattern: str) -> re.Pattern[str]:
@@ -57,9 +58,10 @@ def identify(path: Path, pattern: re.Pattern[str] | None, source: str = "") -> I
     """Device and recording time of one file (a path the pattern does not match is an error
     for that file alone: its summary row says so)."""
     if pattern is None:
-        return Identity(device=safe_name(path.resolve().parent.name or "unknown"),
-                        device_from="parent folder", recorded_at=_mtime(path),
-                        recorded_from="file modification time")
+        folder = path.resolve().parent.name or "unknown"
+        return Identity(device=safe_name(folder), device_from="parent folder",
+                        recorded_at=_mtime(path), recorded_from="file modification time",
+                        named=folder)
     m = pattern.search(path.as_posix())
     if m is None:
         raise ImucalError(f"the path does not match --device-from {source!r}", source=str(path),
@@ -70,7 +72,22 @@ def identify(path: Path, pattern: re.Pattern[str] | None, source: str = "") -> I
         when = parse_time(fields["date"], fields.get("time"), str(path))
         how = "pattern {date}" + (" {time}" if fields.get("time") else "")
     return Identity(device=safe_name(fields["device"]), device_from=f"pattern {source!r}",
-                    recorded_at=when, recorded_from=how)
+                    recorded_at=when, recorded_from=how, named=fields["device"])
+
+
+def check_distinct(found: list[tuple[Path, Identity]]) -> None:
+    """Refuse two units folded into one device id: folders ``IMU 1`` and ``IMU_1`` both make
+    ``IMU_1`` (and ids that differ only in case are one folder on a case-insensitive disk);
+    their calibrations would land in one history, and drift would compare two units."""
+    first: dict[str, tuple[str, Path]] = {}
+    for path, ident in found:
+        key = ident.device.casefold()
+        named, there = first.setdefault(key, (ident.named, path))
+        if ident.named != named:
+            raise ImucalError(f"{named!r} (from {there}) and {ident.named!r} would be one device "
+                              f"id, {ident.device!r}: two units would be merged; rename one "
+                              "folder, or name the devices with --device-from",
+                              source=str(path), field="device")
 
 
 def parse_time(date: str, time: str | None = None, source: str = "--at") -> datetime:

@@ -165,6 +165,7 @@ def add(store: str | os.PathLike, calib: str | os.PathLike, device: str | None =
                           source=str(folder)) from None
     stamp = at.strftime(STAMP)
     with locked(folder / DEVICE_LOCK):
+        _same_unit(folder, dev, doc, device, calib)
         same_second = {}
         for p in folder.glob(f"{stamp}*{SUFFIX}"):
             m = NAME.match(p.name)
@@ -183,6 +184,31 @@ def add(store: str | os.PathLike, calib: str | os.PathLike, device: str | None =
     if update_index:
         refresh_index(root)
     return Added(dev, target, at, how, already=False)
+
+
+NAMED = ".named"  # in a device folder: the text its id was made from (a folder's name)
+
+
+def _same_unit(folder: Path, dev: str, doc: dict, device: str | None, calib: Path) -> None:
+    """Two units never share one history (issue 27): a batch made ``dev`` from a folder's name
+    (``device_named``, e.g. "IMU 1"); a calibration of a unit whose id was made from another
+    text ("IMU_1") is refused. The first one to come names the folder (``.named``); a
+    calibration relabelled by an explicit --device is the user's call."""
+    named = doc.get("device_named")
+    if not isinstance(named, str) or (device is not None and device != doc.get("device")):
+        return
+    mark = folder / NAMED
+    try:
+        there = mark.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        from imucal.io.atomic import write_text_atomic
+
+        write_text_atomic(mark, named)
+        return
+    if there != named:
+        raise ImucalError(f"device {dev!r} of the store holds calibrations of {there!r}, this "
+                          f"file is of {named!r}: two units would be merged; give --device to "
+                          "store it under an id of its own", source=str(calib), field="device")
 
 
 def _stored_key(path: Path) -> str | None:

@@ -11,6 +11,10 @@ and renamed into place only when all of them are complete.
   On any error or interrupt before that, every temporary is removed and no previous file is
   touched. A SIGKILL leaves hidden ``.imucal-*`` temporaries; the next run on the same
   outputs, holding their locks, removes them.
+- ``owned`` targets (a file imucal names itself, such as a table's gyroscope sidecar) are
+  replaced or removed only when imucal can prove it wrote them: commit leaves a record of each
+  beside it (``.imucal-TAG.owner``, the file's SHA-256 as ``sha256sum`` writes it), and a run
+  finding such a name taken by any other file refuses before any work.
 - :func:`atomic_path`, :func:`write_atomic`: one file, for the library's own writers.
 """
 
@@ -18,86 +22,34 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import hashlib
 import os
 import re
 import secrets
 import signal
-import stat
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from imucal.errors import ImucalError
+from imucal.io import beside as bs
+from imucal.io.beside import OWNER_SUFFIX, PREFIX, owner_record
 from imucal.io.targets import check_output_path, refuse
 
-__all__ = ["PREFIX", "Transaction", "atomic_path", "check_output_path", "held_back",
-           "io_problem", "write_atomic", "write_text_atomic"]
+__all__ = ["OWNER_SUFFIX", "PREFIX", "Transaction", "atomic_path", "check_output_path", "held_back",
+           "io_problem", "owner_record", "write_atomic", "write_text_atomic"]
 
 try:
     import fcntl
 except ImportError:  # not POSIX: still one transaction, without the lock against another run
     fcntl = None
 
-PREFIX = ".imucal-"  # temporaries, backups and lock files: hidden, and short whatever the target
 _HELD_BACK = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP")
                    if hasattr(signal, n))
 _RUST_IO = re.compile(r"\(os error (\d+)\)")  # how Rust's io::Error (polars, rerun) ends
 
 
 # --- temporaries -------------------------------------------------------------------------------
-
-
-def _tag(target: Path) -> str:
-    """A short name of one target, the same in every run: its lock file's and its
-    temporaries' (so a run holding the lock knows a killed run's leftovers)."""
-    return hashlib.sha256(os.fsencode(target.name)).hexdigest()[:12]
-
-
-def _mode_for(target: Path) -> int:
-    """A replacement keeps the permissions of the file it replaces; a new file gets what a
-    plain open() would give it."""
-    with contextlib.suppress(OSError):
-        return stat.S_IMODE(os.stat(target).st_mode)
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-def _new_temp(target: Path, *, tagged: bool) -> Path:
-    """An empty file beside ``target``: ``.imucal-TAG-RANDOM.csv`` for a transaction (the
-    target's suffix, which writers read the format from; TAG names the target, see
-    :func:`_tag`), ``.imucal-RANDOM.tmp`` for :func:`atomic_path`."""
-    suffix = target.suffix if 0 < len(target.suffix) <= 16 else ""
-    mode = _mode_for(target)
-    while True:
-        rand = secrets.token_hex(4)
-        name = f"{_tag(target)}-{rand}{suffix}" if tagged else f"{rand}.tmp"
-        tmp = target.parent / f"{PREFIX}{name}"
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
-        except FileExistsError:
-            continue
-        try:
-            os.fchmod(fd, mode)
-        finally:
-            os.close(fd)
-        return tmp
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _unlink(path: Path | None) -> None:
-    if path is not None:
-        with contextlib.suppress(OSError):
-            os.unlink(path)
 
 
 def io_problem(e: BaseException) -> str | None:
@@ -142,12 +94,16 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success, remove it on
     any error or interrupt. ``path`` is checked first (:func:`check_output_path`)."""
     target = check_output_path(path)
-    tmp = _new_temp(target, tagged=False)
+    tmp = bs.new_temp(target, tagged=False)
     try:
         yield tmp
         os.replace(tmp, target)
-    except BaseException:
-        _unlink(tmp)
+    except BaseException as e:
+        bs.unlink(tmp)
+        why = io_problem(e) if isinstance(e, Exception) and not isinstance(e, ImucalError) else None
+        if why is not None:  # a full disk, say, and the file it stopped (issue 27)
+            raise ImucalError(f"could not be written: {why}; the previous file, if any, is "
+                              "unchanged", source=os.fspath(path)) from None
         raise
 
 
@@ -180,6 +136,10 @@ class _Output:
     removed: bool = False  # ... and there was one
     lock_fd: int | None = None
     lock: Path | None = None
+    owned: str | None = None  # replaced or removed only if imucal wrote it: what it is
+    record: _Output | None = None  # ... and the record that says so (see owner_record)
+    seen: tuple | None = None  # the file found at the start of the run (see _identity)
+    is_record: bool = False  # this output is another's record
 
 
 class Transaction:
@@ -191,13 +151,17 @@ class Transaction:
 
     Leaving the block without :meth:`commit` (an error, Ctrl-C, SIGTERM) removes every
     temporary; the previous files stay byte-identical. ``exclusive`` targets are created, never
-    replaced (a name imucal chose, not the user)."""
+    replaced (a name imucal chose, not the user). ``owned`` targets, mapped to what they
+    are ("the gyroscope table of cal.csv"), are names the user did not give: one taken by a
+    file imucal cannot prove it wrote is refused when the block is entered."""
 
     def __init__(self, targets: Iterable[str | os.PathLike | None], *,
                  inputs: Iterable[str | os.PathLike | None] = (),
-                 exclusive: Iterable[str | os.PathLike] = ()) -> None:
+                 exclusive: Iterable[str | os.PathLike] = (),
+                 owned: dict[str | os.PathLike, str] | None = None) -> None:
         ins = [i for i in inputs if i is not None]
         excl = {os.fspath(p) for p in exclusive}
+        owned = {os.fspath(p): what for p, what in (owned or {}).items()}
         self._outputs: list[_Output] = []
         seen: dict[Path, str] = {}
         for t in targets:
@@ -209,13 +173,22 @@ class Transaction:
                 raise refuse(f"the same file is given for two outputs ({seen[target]} and "
                              f"{shown})", shown)
             seen[target] = shown
-            self._outputs.append(_Output(shown, target, exclusive=shown in excl))
+            out = _Output(shown, target, exclusive=shown in excl, owned=owned.get(shown))
+            self._outputs.append(out)
+            if out.owned is not None:
+                rec = owner_record(target)
+                out.record = _Output(os.fspath(rec), check_output_path(rec, ins),
+                                     is_record=True)
+                self._outputs.append(out.record)
         self.committed = False
 
     def __enter__(self) -> Transaction:
         try:
             for out in sorted(self._outputs, key=lambda o: str(o.target)):
                 self._lock(out)
+            for out in self._outputs:
+                if out.owned is not None:
+                    self._check_owned(out)
         except BaseException:
             self._release()
             raise
@@ -225,7 +198,7 @@ class Transaction:
         with held_back():
             if not self.committed:
                 for out in self._outputs:
-                    _unlink(out.tmp)
+                    bs.unlink(out.tmp)
                     out.tmp = None
             self._release()
 
@@ -234,7 +207,7 @@ class Transaction:
     def _lock(self, out: _Output) -> None:
         if fcntl is None:
             return
-        lock = out.target.parent / f"{PREFIX}{_tag(out.target)}.lock"
+        lock = out.target.parent / f"{PREFIX}{bs.tag(out.target)}.lock"
         while True:
             try:
                 fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
@@ -259,13 +232,23 @@ class Transaction:
             os.close(fd)
         out.lock_fd, out.lock = fd, lock
         # Holding the lock, any temporary of this target is a killed run's leftover.
-        for old in out.target.parent.glob(f"{PREFIX}{_tag(out.target)}-*"):
-            _unlink(old)
+        for old in out.target.parent.glob(f"{PREFIX}{bs.tag(out.target)}-*"):
+            bs.unlink(old)
+
+    @staticmethod
+    def _check_owned(out: _Output) -> None:
+        """Refuse, before any work, to replace or remove a file the user did not name and
+        imucal did not write (held under the lock: another run cannot be writing it)."""
+        out.seen = bs.identity(out.target)
+        if out.seen is not None and not bs.written_by_imucal(out.target):
+            raise ImucalError(f"exists and imucal did not write it, but this run would replace "
+                              f"or remove it ({out.owned}); move it away or choose another "
+                              "output name", source=out.shown)
 
     def _release(self) -> None:
         for out in self._outputs:
             if out.lock_fd is not None:
-                _unlink(out.lock)  # while still locked: see _lock
+                bs.unlink(out.lock)  # while still locked: see _lock
                 os.close(out.lock_fd)
                 out.lock_fd = out.lock = None
 
@@ -283,7 +266,7 @@ class Transaction:
         target's suffix, the permissions of the file it will replace)."""
         out = self._find(path)
         if out.tmp is None:
-            out.tmp = _new_temp(out.target, tagged=True)
+            out.tmp = bs.new_temp(out.target, tagged=True)
         return out.tmp
 
     @contextlib.contextmanager
@@ -312,7 +295,7 @@ class Transaction:
         temporary: a sidecar file). Registered before the writer runs, so that a failure
         removes it; if nothing is there at commit, commit removes a previous ``path``."""
         out = self._find(path)
-        _unlink(out.tmp)
+        bs.unlink(out.tmp)
         out.tmp, out.expected = written, True
 
     def shown(self, path: str | os.PathLike) -> str:
@@ -321,7 +304,7 @@ class Transaction:
     @property
     def removed(self) -> list[str]:
         """The previous files commit removed (see :meth:`expect`)."""
-        return [o.shown for o in self._outputs if o.removed]
+        return [o.shown for o in self._outputs if o.removed and not o.is_record]
 
     # -- commit --
 
@@ -329,14 +312,18 @@ class Transaction:
         """Rename every temporary onto its target, all or none; first flush each to the disk
         (a full disk may only show there)."""
         for out in self._outputs:
+            if out.is_record:
+                continue  # made with its file, below
             if out.tmp is not None and out.expected and not out.tmp.exists():
                 out.tmp, out.remove = None, True
             elif out.tmp is None:
                 raise RuntimeError(f"output not written: {out.shown}")
             else:
                 with self._failing_as(out):
-                    _fsync(out.tmp)
-                    os.chmod(out.tmp, _mode_for(out.target))
+                    bs.fsync(out.tmp)
+                    os.chmod(out.tmp, bs.mode_for(out.target))
+            if out.record is not None:
+                self._prepare_record(out)
         with held_back():
             backups: list[tuple[_Output, Path | None, bool]] = []
             try:
@@ -349,11 +336,30 @@ class Transaction:
                                   "was changed", source=backups[-1][0].shown) from None
             finally:
                 for _, b, _ in backups:
-                    _unlink(b)
+                    bs.unlink(b)
             self.committed = True
             for d in {o.target.parent for o in self._outputs}:
                 with contextlib.suppress(OSError):
-                    _fsync(d)
+                    bs.fsync(d)
+
+    def _prepare_record(self, out: _Output) -> None:
+        """The record of an owned output goes with it: written for a new file, removed with a
+        removed one. A file put at the name by something else during the run is refused."""
+        if bs.identity(out.target) != out.seen:
+            raise ImucalError("was changed by something else during the run; no output was "
+                              "changed", source=out.shown)
+        rec = out.record
+        bs.unlink(rec.tmp)
+        rec.tmp = None
+        if out.remove:
+            rec.remove = True
+            return
+        rec.tmp = bs.new_temp(rec.target, tagged=True)
+        with self._failing_as(rec):
+            with open(rec.tmp, "wb") as f:
+                f.write(bs.record_line(out.tmp, out.target.name))
+                f.flush()
+                os.fsync(f.fileno())
 
     @staticmethod
     def _backup(out: _Output) -> tuple[Path | None, bool]:
@@ -361,7 +367,7 @@ class Transaction:
         whether there was one."""
         if not out.target.exists():
             return None, False
-        b = out.target.parent / f"{PREFIX}{_tag(out.target)}-{secrets.token_hex(4)}.bak"
+        b = out.target.parent / f"{PREFIX}{bs.tag(out.target)}-{secrets.token_hex(4)}.bak"
         try:
             os.link(out.target, b)
         except OSError:  # no hard links here: the rename still happens, without a way back
@@ -376,7 +382,7 @@ class Transaction:
                 out.removed = True
         elif out.exclusive:
             os.link(out.tmp, out.target)  # EEXIST if the name was taken meanwhile
-            _unlink(out.tmp)
+            bs.unlink(out.tmp)
         else:
             os.replace(out.tmp, out.target)
         out.tmp = None

@@ -276,8 +276,83 @@ def calibration_from_dict(data: dict, source: str = "calibration") -> Calibratio
     and checked parameter by parameter (:meth:`Calibration.from_dict`)."""
     data = migrate(data, source)
     try:
-        return Calibration.from_dict(data)
+        cal = Calibration.from_dict(data)
     except ImucalError as e:
         raise ImucalError(e.problem, source=source, field=e.field) from None
+    check_plausible(cal, source)
+    return cal
+
+
+# Plausibility (issue 27): a model apply or an export could use, but no sensor has. Every reader
+# of a calibration file comes through calibration_from_dict, so apply and every export refuse
+# what calibrate itself calls not physical. The bounds are wide: they catch a hand edit gone
+# wrong (a sign, K and b swapped, the two sensors' models swapped, 1e308), not a poor sensor.
+_SI = {"g": 9.80665, "m/s^2": 1.0, "rad/s": 1.0, "deg/s": np.pi / 180}
+_SCALE_BAND = 10.0  # K within 1/10 to 10 times the units' own ratio (calibrate warns at 2)
+_COUNT_SCALE = (1e-12, 10.0)  # calibrated units per count: any real sensor's resolution
+_SCALE_RATIO = 10.0  # a triad's axes have one sensitivity to a few percent
+_MAX_MISALIGNMENT = 1.0  # an off-diagonal of T beyond tan 45 deg is no misalignment
+_MAX_BIAS_SI = {"accelerometer": 10 * 9.80665, "gyroscope": 10.0}  # m/s^2, rad/s: no MEMS part
+_MAX_COUNT = 2.0**32  # raw counts: no converter gives more
+
+
+def check_plausible(cal: Calibration, source: str) -> None:
+    """Refuse a calibration no sensor has, in one line naming the file and the field."""
+    ratio = cal.g / (1.0 if cal.acc_unit == "g" else _SI["g"])
+    if not 0.1 <= ratio <= 10:
+        raise ImucalError(f"g = {cal.g:g} {cal.acc_unit} is not a gravity (expected near "
+                          f"{_SI['g'] / _SI[cal.acc_unit]:g})", source=source, field="units.g")
+    for i, seg in enumerate(cal.segments):
+        sensors = [("accelerometer", seg.acc, cal.acc_unit_raw, cal.acc_unit)]
+        if seg.gyro is not None:
+            sensors.append(("gyroscope", seg.gyro, cal.gyro_unit_raw, "rad/s"))
+        for sensor, model, raw, out in sensors:
+            why = _implausible(sensor, model, raw, out)
+            if why is not None:
+                key, problem = why
+                raise ImucalError(f"{problem}: no sensor has this model; was the file edited?",
+                                  source=source, field=f"segments[{i}].{sensor}.{key}")
+
+
+def _implausible(sensor: str, model, raw: str | None, out: str) -> tuple[str, str] | None:
+    T, K, b = model.T, model.K, model.b
+    lower = T[np.tril_indices(3, -1)]
+    off = T[~np.eye(3, dtype=bool)]
+    if np.any(np.abs(np.diag(T) - 1) > 1e-9):
+        return "T", f"T's diagonal {_v(np.diag(T))} is not 1 (method.md M2, M4)"
+    if sensor == "accelerometer" and np.any(np.abs(lower) > 1e-9):
+        return "T", (f"T has entries {_v(lower)} below its diagonal, but the accelerometer's T "
+                     "is upper triangular (method.md M2): is this the gyroscope's model?")
+    if np.any(np.abs(off) > _MAX_MISALIGNMENT):
+        return "T", f"misalignment {_v(off)} beyond 45 degrees"
+    if np.any(K < 0):
+        return "K", f"negative scale factor in K {_v(K)}"
+    if K.max() > _SCALE_RATIO * K.min():
+        return "K", f"scale factors K {_v(K)} differ by more than {_SCALE_RATIO:g} times"
+    if raw in _SI:
+        nominal = _SI[raw] / _SI[out]
+        if not (nominal / _SCALE_BAND <= K.min() and K.max() <= nominal * _SCALE_BAND):
+            return "K", (f"K {_v(K)} is no scale from {raw} to {out} (expected near "
+                         f"{nominal:.4g}): are K and b swapped, or the units wrong?")
+    elif not (_COUNT_SCALE[0] <= K.min() and K.max() <= _COUNT_SCALE[1]):
+        return "K", f"K {_v(K)} {out} per count is no sensor's resolution"
+    if raw not in _SI:
+        # Raw counts: an unsigned ADC's zero sits mid-range (32768 counts: 16 g of a +-16 g
+        # part), so only a count no converter gives is refused.
+        if not np.all(np.abs(b) <= _MAX_COUNT):
+            return "b", f"bias b {_v(b)} counts is beyond any converter's range (2^32)"
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e308: refused just below
+        bias = model.matrix @ b
+        bias_si = np.abs(bias) * _SI[out]
+    if not np.all(bias_si <= _MAX_BIAS_SI[sensor]):
+        limit = _MAX_BIAS_SI[sensor] / _SI[out]
+        return "b", (f"bias b {_v(b)} {raw} is {_v(bias)} {out} once calibrated, "
+                     f"beyond {limit:g} {out}: are K and b swapped?")
+    return None
+
+
+def _v(x) -> str:
+    return "[" + ", ".join(f"{float(v):.4g}" for v in np.ravel(x)) + "]"
 
 

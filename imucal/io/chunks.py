@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from imucal.errors import ImucalError
+from imucal.io.input_files import check_gyro_file, refuse_special
 from imucal.io.load import load_session
 from imucal.io.readers import display_name
 from imucal.session import Session
@@ -75,12 +76,17 @@ def _header_end(path: Path) -> int:
 def _plan(path: Path) -> _Plan:
     if not path.exists():
         raise ImucalError("file not found", source=str(path))
+    refuse_special(path.stat().st_mode, display_name(path))
     from imucal.io.formats import sniff
 
     if path.is_dir() and sniff(b"", path):
         return _Plan(path, "whole")  # a ROS 2 bag's folder: its chosen topics, read whole
-    with path.open("rb") as f:
-        head = f.read(1024)
+    try:
+        with path.open("rb") as f:
+            head = f.read(1024)
+    except OSError as e:  # permission: the file named, as every reader says it
+        raise ImucalError(f"cannot be read ({e.strerror or e})", source=display_name(path)
+                          ) from None
     if sniff(head):
         return _Plan(path, "whole")  # a log of many streams: only the chosen ones are read
     if head[:4] == _PARQUET:
@@ -137,6 +143,8 @@ def iter_chunks(path: str | os.PathLike, *, gyro_path: str | os.PathLike | None 
     """The recording as consecutive sessions of about ``chunk_bytes`` each (see the module
     docstring). ``load_kw`` are :func:`load_session`'s options; the first chunk's resolved
     accelerometer unit is given to the later ones, so a guess is made once."""
+    if gyro_path is not None:  # pieces of one file are two files: check the files themselves
+        check_gyro_file([Path(path), Path(gyro_path)], load_kw.get("acc_only", False))
     plans = [_plan(Path(path))] + ([_plan(Path(gyro_path))] if gyro_path is not None else [])
     if any(p.kind == "whole" for p in plans):
         sess = load_session(path, gyro_path=gyro_path, **load_kw)
@@ -152,7 +160,13 @@ def iter_chunks(path: str | os.PathLike, *, gyro_path: str | os.PathLike | None 
         for piece in pieces:
             piece.parent.mkdir()
         for j in range(n):
-            have = [_write_piece(p, j, n, c, piece) for p, c, piece in zip(plans, cuts, pieces)]
+            try:
+                have = [_write_piece(p, j, n, c, piece)
+                        for p, c, piece in zip(plans, cuts, pieces)]
+            except OSError as e:  # a full disk: say which file and where (issue 27)
+                raise ImucalError(f"cannot write chunk {j + 1} of {n} to the temporary folder "
+                                  f"{tmp} ({e.strerror or e}); free space there or set TMPDIR",
+                                  source=display_name(Path(path))) from None
             if not all(have):
                 continue
             try:

@@ -7,7 +7,7 @@ gyroscope is decided by :mod:`imucal.io.load`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,3 +38,6 @@ class Variables:
 
     source: str
     arrays: dict[str, np.ndarray]
+    # The variables that are not real numeric matrices, and what each is ("a sparse matrix"):
+    # named when one of them is where the accelerometer or gyroscope was expected.
+    skipped: dict[str, str] = field(default_factory=dict)

@@ -25,6 +25,7 @@ from imucal.errors import ImucalError
 from imucal.io.column_names import ALL_ROLES, LABELS
 from imucal.io.file_contents import Table, Variables
 from imucal.io.file_facts import FileFacts, read_facts
+from imucal.io.input_files import check_file, check_gyro_file
 from imucal.io.load_mat5_pool import usable_threads
 from imucal.io.logs import check_select, choose_streams, log_format
 from imucal.io.mat_layout import from_variables
@@ -33,7 +34,7 @@ from imucal.io.readers import display_name, read_file
 from imucal.io.select import describe, find, parts_of
 from imucal.io.spill import Spill, SpillPolicy, contiguous, elementwise
 from imucal.io.table_layout import from_names, from_positions
-from imucal.io.time_base import MAX_RATE_HZ, own_rows, settle_time
+from imucal.io.time_base import MAX_RATE_HZ, MIN_RATE_HZ, own_rows, settle_time
 from imucal.io.units import (
     ACC_UNIT_KEYS,
     GYRO_UNIT_KEYS,
@@ -104,6 +105,10 @@ def load_session(
     acc_unit = check_unit_arg(acc_unit, ACC_UNIT_KEYS, "acc_unit", source)
     gyro_unit = check_unit_arg(gyro_unit, GYRO_UNIT_KEYS, "gyro_unit", source)
     select = check_select(select, source)
+    if acc_only and select.get("gyro") is not None:
+        raise ImucalError(f"--acc-only calibrates the accelerometer alone, but --gyro "
+                          f"{select['gyro']} names a gyroscope; give one or the other",
+                          source=source, field="--gyro")
     log = log_format(paths[0]) if len(paths) == 1 else None
     if log is None and select.get("gyro") is not None and gyro_path is None:
         # --gyro beside a table names the gyroscope's file (one that is not there: said below)
@@ -114,7 +119,8 @@ def load_session(
                           "a DataFlash log); this file is a table: map its columns with "
                           "--columns", source=source, field="--acc")
     for p in paths:
-        _check_file(p, log is not None)
+        check_file(p, log is not None, MAX_FILE_BYTES)
+    check_gyro_file(paths, acc_only)
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
     threads = usable_threads() if threads is None else max(1, int(threads))
@@ -204,7 +210,9 @@ def _read_parts(paths: list[Path], acc_only: bool, opts: LoadOptions,
                 source: str, store: Spill, threads: int) -> dict:
     """The accelerometer's and gyroscope's columns, from one file or from two."""
     if len(paths) == 2:
-        parts = _extract(read_file(paths[0], store, threads), ("acc",), opts)
+        first = read_file(paths[0], store, threads)
+        _no_gyro_of_its_own(first, paths)
+        parts = _extract(first, ("acc",), opts)
         parts.update(_extract(read_file(paths[1], store, threads), ("gyro",), opts))
         return parts
     parts = _extract(read_file(paths[0], store, threads), ("acc", "gyro"), opts)
@@ -253,10 +261,10 @@ def _check_rate(rate: float | None, source: str) -> float | None:
     except (TypeError, ValueError):
         raise ImucalError(f"sample rate must be a number of Hz, got {rate!r}",
                           source=source, field="rate") from None
-    if not math.isfinite(value) or value <= 0 or value > MAX_RATE_HZ:
+    if not math.isfinite(value) or not MIN_RATE_HZ <= value <= MAX_RATE_HZ:
         raise ImucalError(
-            f"sample rate must be a finite number of Hz in (0, {MAX_RATE_HZ:g}], got {rate!r}",
-            source=source, field="rate",
+            f"sample rate must be a number of Hz from {MIN_RATE_HZ:.4g} (one sample a minute) to "
+            f"{MAX_RATE_HZ:g}, got {rate!r}", source=source, field="rate",
         )
     return value
 
@@ -279,26 +287,22 @@ def _check_columns(columns: Mapping[str, str | int] | None, source: str) -> dict
     return dict(columns)
 
 
-def _check_file(path: Path, log: bool = False) -> None:
-    """A file that exists and can be read; a log of many streams (``log``) may be a ROS 2 bag's
-    folder, and may be larger than a table, as only its chosen streams are read."""
-    name = display_name(path)
+def _no_gyro_of_its_own(content: Table | Variables, paths: list[Path]) -> None:
+    """A session file with a gyroscope of its own and a --gyro file beside it: which one is
+    meant cannot be told; refused rather than one silently dropped (issue 27). Found by the
+    names alone (--columns maps the accelerometer file's columns, not these)."""
+    if isinstance(content, Table) and content.names is None:
+        return  # no header: one file of a pair must have 3 columns (said by from_positions)
+    scratch = LoadOptions(rate=1.0, time_unit="s", columns=None)
     try:
-        st = path.stat()
-    except FileNotFoundError:
-        where = "" if str(path) == name else f" (looked at {path})"
-        raise ImucalError(f"file not found{where}", source=name) from None
-    except OSError as exc:
-        raise ImucalError(f"cannot access the file ({exc.strerror})", source=name) from None
-    if log:
-        return
-    if path.is_dir():
-        raise ImucalError("is a directory; expected a data file", source=name)
-    if st.st_size == 0:
-        raise ImucalError("the file is empty; expected IMU samples", source=name)
-    if st.st_size > MAX_FILE_BYTES:
-        raise ImucalError(f"the file is {st.st_size / 2**30:.1f} GiB; files over 2 GiB are not "
-                          "loaded (split the recording)", source=name)
+        own = "gyro" in _extract(content, ("acc", "gyro"), scratch)
+    except ImucalError:
+        own = False
+    if own:
+        raise ImucalError(f"has a gyroscope of its own, and --gyro {display_name(paths[1])} "
+                          "names another; drop --gyro to use the file's own, or give a file "
+                          "with the accelerometer alone", source=display_name(paths[0]),
+                          field="--gyro")
 
 
 def _sha256_soon(paths: list[Path], threads: int) -> Callable[[], str]:

@@ -69,8 +69,8 @@ class _Stopped(Exception):
 Job = Callable[[Callable[[], bool]], None]  # fills one variable's array; its argument: stop?
 
 
-def read_mat5_arrays(path: Path, spill: Spill | None = None, threads: int = 1
-                     ) -> dict[str, np.ndarray]:
+def read_mat5_arrays(path: Path, spill: Spill | None = None, threads: int = 1,
+                     skipped: dict[str, str] | None = None) -> dict[str, np.ndarray]:
     """Every real numeric 2-D variable of a MATLAB v5 file, as float64, by name; ``spill``
     allocates them (large ones mapped from a temporary file, :mod:`imucal.io.spill`); their
     data are inflated in up to ``threads`` threads.
@@ -79,6 +79,8 @@ def read_mat5_arrays(path: Path, spill: Spill | None = None, threads: int = 1
     rows (3 x N) Fortran-ordered: either way its samples are rows of a C-ordered array once
     oriented (:mod:`imucal.io.mat_layout`). Raises :class:`Unsupported` where the general
     reader must decide, :class:`CorruptVariable` for a variable that does not inflate.
+    ``skipped`` receives the other variables' names and what each is, in words ("complex
+    numbers", "a sparse matrix"), for a message that names them.
     """
     from imucal.io.load_mat5_pool import run_in_order
 
@@ -86,13 +88,13 @@ def read_mat5_arrays(path: Path, spill: Spill | None = None, threads: int = 1
     fd = os.open(path, os.O_RDONLY)
     try:
         found: dict[str, np.ndarray] = {}
-        run_in_order(_jobs(fd, found, spill), threads)
+        run_in_order(_jobs(fd, found, spill, {} if skipped is None else skipped), threads)
         return found
     finally:
         os.close(fd)
 
 
-def _jobs(fd: int, found: dict[str, np.ndarray], spill: Spill
+def _jobs(fd: int, found: dict[str, np.ndarray], spill: Spill, skipped: dict[str, str]
           ) -> Iterator[tuple[Job, Callable[[], None]]]:
     """Each variable's job (reading its data) and what keeps its array once the job is done,
     in the order of the file; the heads are read here, in the calling thread, so that ``spill``
@@ -115,11 +117,12 @@ def _jobs(fd: int, found: dict[str, np.ndarray], spill: Spill
             inner_kind, inner_n = struct.unpack(fmt + "II", stream.read(8))
             if inner_kind != _MATRIX:
                 raise Unsupported("compressed element")
-            yield _variable(stream, inner_n, fmt, found, head, spill, compressed=True)
+            yield _variable(stream, inner_n, fmt, found, head, spill, compressed=True,
+                            skipped=skipped)
             pos = body + nbytes
         else:
             yield _variable(_Plain(fd, body, nbytes), nbytes, fmt, found, head, spill,
-                            compressed=False)
+                            compressed=False, skipped=skipped)
             pos = body + nbytes + (-nbytes) % 8
 
 
@@ -222,7 +225,7 @@ def _skip(stream: _Stream, n: int) -> None:
 
 
 def _variable(stream: _Stream, nbytes: int, fmt: str, found: dict[str, np.ndarray],
-              header: bytes, spill: Spill, compressed: bool
+              header: bytes, spill: Spill, compressed: bool, skipped: dict[str, str]
               ) -> tuple[Job, Callable[[], None]]:
     """One miMATRIX element's head, read now; returns the job that reads its data (when a real
     numeric 2-D matrix; else the element is checked and skipped now) and what keeps it."""
@@ -243,7 +246,9 @@ def _variable(stream: _Stream, nbytes: int, fmt: str, found: dict[str, np.ndarra
         except CorruptMat:
             raise Unsupported("a corrupt variable") from None
         used = len(head) + len(rest)
-        return nothing, lambda: None
+        what = _skipped_as(head, fmt)
+        return nothing, (lambda: None) if what is None else (
+            lambda: skipped.__setitem__(*what))
     name, (rows, cols), dtype, data_at, data_n = fields
     if data_n != rows * cols * np.dtype(dtype).itemsize or data_at + data_n > nbytes:
         raise Unsupported("data size")
@@ -332,6 +337,27 @@ def _fields(head: bytes, fmt: str) -> tuple[str, tuple[int, int], str, int, int]
     if stored != klass and klass != "f8":  # scipy casts to the class; double is exact
         raise Unsupported("data type and class differ")
     return name.decode("latin-1"), (rows, cols), stored, at + 8, n
+
+
+_SKIPPED_CLASSES = {1: "a cell array", 2: "a struct", 3: "an object", 4: "text (char)",
+                    5: "a sparse matrix"}
+
+
+def _skipped_as(head: bytes, fmt: str) -> tuple[str, str] | None:
+    """A skipped variable's name and what it is in words; None where the head says neither."""
+    u32 = fmt + "II"
+    try:
+        flags = struct.unpack(fmt + "I", head[8:12])[0]
+        cls = flags & 0xFF
+        what = _SKIPPED_CLASSES.get(cls) or (
+            "complex numbers" if flags & _COMPLEX else f"MATLAB class {cls}")
+        _, n = struct.unpack(u32, head[16:24])  # dimensions: any number of them
+        at = 24 + n + (-n) % 8
+        kind, n = struct.unpack(u32, head[at:at + 8])
+        name = head[at + 4:at + 4 + (kind >> 16)] if kind >> 16 else head[at + 8:at + 8 + n]
+    except struct.error:
+        return None
+    return (name.decode("latin-1"), what) if name else None
 
 
 def _allocate(rows: int, cols: int, spill: Spill) -> np.ndarray:

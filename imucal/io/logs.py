@@ -20,10 +20,12 @@ def log_format(path: Path) -> str | None:
     try:
         if path.is_dir():
             return sniff(b"", path)
+        if not path.is_file():
+            return None  # a FIFO would block here: check_file says what it is
         with path.open("rb") as fh:
             return sniff(fh.read(1024), path)
     except OSError:
-        return None  # _check_file says what is wrong with it
+        return None  # check_file says what is wrong with it
 
 
 def read_log(path: Path, key: str, source: str, keep=None) -> StreamSet:

@@ -24,6 +24,9 @@ def from_variables(content: Variables, sensors: tuple[str, ...],
     lower = {name.lower(): name for name in variables}
     found = {s: _find_var(lower, names, LABELS[s], source)
              for s, names in (("acc", _ACC_VARS), ("gyro", _GYRO_VARS))}
+    for sensor, names in (("acc", _ACC_VARS), ("gyro", _GYRO_VARS)):
+        if sensor in sensors and found[sensor] is None:
+            _not_numbers(content, names, LABELS[sensor])
     shared = _find_var(lower, _SHARED_TIME_VARS, "time", source)
     shared_t = _vector(variables, shared, source) if shared else None
 
@@ -56,6 +59,16 @@ def from_variables(content: Variables, sensors: tuple[str, ...],
                               field="time")
         parts[sensor] = part
     return parts
+
+
+def _not_numbers(content: Variables, names: tuple[str, ...], label: str) -> None:
+    """A variable named as a sensor's that holds something else than real numbers (complex,
+    sparse, text, a cell): said as such, not as a missing variable (issue 27)."""
+    for name, what in content.skipped.items():
+        if name.lower() in names:
+            raise ImucalError(f"the variable {name!r} holds {what}, not real numbers; the "
+                              f"{label} is expected as a real 3 x N or N x 3 matrix (full, "
+                              "double or integer)", source=content.source, field=name)
 
 
 def _find_var(lower: dict[str, str], names: tuple[str, ...], what: str, source: str) -> str | None:

@@ -14,7 +14,7 @@ from imucal.errors import ImucalError
 from imucal.io.chunks import CHUNK_BYTES, continuous_time, iter_chunks
 from imucal.io.readers import display_name
 from imucal.stages.apply import Calibration
-from imucal.stages.noise import NoiseReport, StreamingNoise
+from imucal.stages.noise import MAX_MOTION, NoiseReport, StreamingNoise
 
 
 def measure_noise(path: str | os.PathLike, *, calibration: Calibration | None = None,
@@ -48,14 +48,20 @@ def measure_noise(path: str | os.PathLike, *, calibration: Calibration | None = 
         else:
             acc, gyro = sess.acc, sess.gyro if sess.has_gyro else None
         t = continuous_time(sess.t_acc, last["accelerometer"])
-        stream.update("accelerometer", t, acc)
+        chunk = {"accelerometer": (t, acc)}
         last["accelerometer"] = float(t[-1])
         if gyro is not None and sess.t_gyro is not None:
             tg = continuous_time(sess.t_gyro, last["gyroscope"])
-            stream.update("gyroscope", tg, gyro)
+            chunk["gyroscope"] = (tg, gyro)
             last["gyroscope"] = float(tg[-1])
+        stream.feed(chunk)  # what is not still is left out
     if stream is None:
         raise ImucalError("no samples", source=names[0])
+    if stream.moving_fraction() > MAX_MOTION:
+        raise ImucalError(f"is mostly motion, not a still recording: "
+                          f"{100 * stream.moving_fraction():.3g} % of the samples are not still "
+                          "(beyond 8 noise sigmas of their second's median); the noise figures "
+                          "need the sensor at rest", source=names[0])
     what = "calibrated" if calibration is not None else "raw"
     source = (f"{' + '.join(names)}: still recording, {what} signals, read in {chunks} "
               f"chunk{'s' if chunks != 1 else ''}; overlapping Allan deviation at octave taus")

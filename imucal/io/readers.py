@@ -63,6 +63,10 @@ def read_file(path: Path, spill: Spill | None = None, threads: int = 1) -> Table
         raise
     except MemoryError:
         raise ImucalError("not enough memory to load the file", source=source) from None
+    except OSError as exc:  # permission, an I/O error: the operating system's reason
+        if exc.strerror is None:
+            raise ImucalError(f"cannot read the file: {_one_line(exc)}", source=source) from None
+        raise ImucalError(f"cannot be read ({exc.strerror})", source=source) from None
     except _parser_errors() as exc:  # any parser failure is a problem with the file, in one line
         raise ImucalError(f"cannot read the file: {_one_line(exc)}", source=source) from None
 
@@ -106,7 +110,9 @@ def _read_mat5(path: Path, spill: Spill | None, threads: int) -> Variables:
     from imucal.io.load_mat5 import CorruptVariable, Unsupported, read_mat5_arrays
 
     try:
-        return Variables(path.name, read_mat5_arrays(path, spill, threads))
+        skipped: dict[str, str] = {}
+        arrays = read_mat5_arrays(path, spill, threads, skipped)
+        return Variables(path.name, arrays, skipped)
     except CorruptVariable as e:  # the general way refuses it too, without naming it
         raise ImucalError(f"corrupt MATLAB v5 file: the variable {e.what}",
                           source=display_name(path), field=e.name) from None
@@ -128,34 +134,57 @@ def _read_mat5_general(path: Path) -> Variables:
     del data
     inflated.seek(0)
     raw = loadmat(inflated)  # the checked file, its variables already inflated by the check
-    found = {}
+    found, skipped = {}, {}
     for name, value in raw.items():
         if name.startswith("__"):
             continue
         matrix = _as_matrix(value)
         if matrix is not None:
             found[name] = matrix
-    return Variables(path.name, found)
+        else:
+            skipped[name] = _what_is(value)
+    return Variables(path.name, found, skipped)
+
+
+def _what_is(value: object) -> str:
+    """A variable scipy read that is not a real numeric matrix, in words."""
+    if not isinstance(value, np.ndarray):
+        return "a sparse matrix" if hasattr(value, "tocsr") else type(value).__name__
+    kind = value.dtype.kind
+    if value.size == 0:
+        return "empty"
+    return {"c": "complex numbers", "U": "text (char)", "S": "text (char)", "b": "logical values",
+            "O": "a cell array", "V": "a struct"}.get(kind, f"values of type {value.dtype}")
 
 
 def _read_hdf5(path: Path) -> Variables:
     import h5py
 
-    found = {}
+    found, skipped = {}, {}
     with h5py.File(path, "r") as f:
         for name, item in f.items():
-            if not isinstance(item, h5py.Dataset) or name.startswith("#"):
+            if name.startswith("#"):
                 continue
             cls = item.attrs.get("MATLAB_class")
             cls = cls.decode() if isinstance(cls, bytes) else cls
+            if not isinstance(item, h5py.Dataset):  # MATLAB v7.3 keeps these as groups
+                if "MATLAB_sparse" in item.attrs or cls == "struct":
+                    skipped[name] = "a sparse matrix" if cls != "struct" else "a struct"
+                continue
             if cls in ("char", "logical", "cell", "struct") or "MATLAB_empty" in item.attrs:
+                skipped[name] = {"char": "text (char)", "logical": "logical values",
+                                 "cell": "a cell array", "struct": "a struct"}.get(cls, "empty")
+                continue
+            names = item.dtype.names or ()
+            if "real" in names and "imag" in names:  # how MATLAB v7.3 stores complex numbers
+                skipped[name] = "complex numbers"
                 continue
             matrix = _as_matrix(item[()])
             if matrix is None:
                 continue
             # MATLAB writes column-major, so h5py sees every matrix transposed.
             found[name] = matrix.T if cls is not None else matrix
-    return Variables(path.name, found)
+    return Variables(path.name, found, skipped)
 
 
 def _read_parquet(path: Path) -> Table:

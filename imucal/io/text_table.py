@@ -24,8 +24,13 @@ if TYPE_CHECKING:
     import polars as pl
 
 
+_COMMENT_LINE = re.compile(rb"(?m)^[ \t]*#[^\n]*")
+
+
 def read_text(data: bytes, source: str) -> Table:
     data = data.removeprefix(b"\xef\xbb\xbf")
+    if b"\n" not in data and b"\r" in data:
+        data = data.replace(b"\r", b"\n")  # classic Mac OS line endings: CR alone (issue 27)
     found = find_table_start(data)
     start, end, comments = found.start, found.end, found.comments
     if start is None:
@@ -46,12 +51,17 @@ def read_text(data: bytes, source: str) -> Table:
         names = _commented_header(comments, sep, len(fields))
     body = data[body_start:]
     first_line = data.count(b"\n", 0, body_start) + 1  # 1-based file line of the body's start
+    skipped = 0
+    if b"#" in body:  # comment lines among the rows: emptied (a line's number stays its own)
+        body, skipped = _COMMENT_LINE.subn(b"", body)
     decimal_comma = sep == ";" and b"," in body[:4096]  # "1,5;2,0": European spreadsheets
     n_fields = len(names) if names else len(fields)
     body, cut = drop_cut_last_line(body, sep, n_fields, decimal_comma, first_line)
     table = _parse_body(body, sep, names, decimal_comma, first_line, source)
     table.preamble = tuple(found.pairs)
-    table.notes = (f"{source}: {cut}",) if cut else ()
+    table.notes = ((f"{source}: {cut}",) if cut else ()) + (
+        (f"{source}: {plural(skipped, 'comment line')} (#) among the rows skipped",)
+        if skipped else ())
     return table
 
 

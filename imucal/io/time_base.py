@@ -13,6 +13,9 @@ from imucal.io.units import TIME_UNITS
 from imucal.session import chunks_all
 
 MAX_RATE_HZ = 100_000.0
+# One sample a minute: below it no recording is an IMU's, and a rate such as 1e-300 only
+# overflows the timestamps (issue 27: it ended in an internal error).
+MIN_RATE_HZ = 1 / 60
 MAX_BRIDGED_RUN = 5  # longest run of non-finite samples that is interpolated instead of refused
 MAX_BRIDGED_FRACTION = 0.05  # and at most this share of a recording may be interpolated
 NUMBERED_NOTE = ("no time column and no rate: t is the sample number (0, 1, 2, ...), which a "

@@ -78,6 +78,8 @@ class AllanAccumulator:
         else:
             self.strides = np.maximum(1, self.lags // int(overlap))
         self.n = 0
+        self.run = 0  # samples since the last restart (the current stretch)
+        self.longest = 0  # the longest stretch: what the longest cluster must fit in
         self.centre: np.ndarray | None = None
         self.total = np.zeros(self.width)  # S_n: sum of the centred samples so far
         # Per lag: the running sums at the last 2 m / stride multiples of the stride.
@@ -94,7 +96,7 @@ class AllanAccumulator:
             self.centre = x.mean(axis=0)
         sums = np.cumsum(x - self.centre, axis=0)
         sums += self.total
-        pos0 = self.n  # the sums above are S at positions pos0 + 1 .. pos0 + len(x)
+        pos0 = self.run  # the sums above are S at positions pos0 + 1 .. pos0 + len(x)
         for j, (m, s) in enumerate(zip(self.lags, self.strides)):
             first = (pos0 // s + 1) * s  # first multiple of the stride after pos0
             if first > pos0 + len(x):
@@ -110,10 +112,20 @@ class AllanAccumulator:
             self.tails[j] = arr.copy() if arr.base is not None else arr
         self.total = sums[-1].copy()
         self.n += len(x)
+        self.run += len(x)
+        self.longest = max(self.longest, self.run)
+
+    def restart(self) -> None:
+        """A gap: the samples fed next are a new stretch, and no cluster spans the gap. The
+        sums and terms go on: the variance is pooled over the stretches, as
+        :func:`pooled_allan_variance` pools it over still blocks."""
+        self.tails = [np.zeros((1, self.width)) for _ in self.lags]
+        self.total = np.zeros(self.width)
+        self.run = 0
 
     def curve(self, min_clusters: float = 3.0) -> AllanCurve:
         """The lags with terms whose clusters fit ``min_clusters`` times in the signal."""
-        keep = (self.terms > 0) & (self.lags * min_clusters <= self.n)
+        keep = (self.terms > 0) & (self.lags * min_clusters <= self.longest)
         lags = self.lags[keep]
         avar = self.sums[keep] / (2.0 * lags[:, None].astype(float) ** 2
                                   * self.terms[keep][:, None])

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imucal.errors import ImucalError
 from imucal.models import GYRO_THETA0, SensorModel
 from imucal.numerics.kfold import fold_of_groups, kfold_refits
 from imucal.numerics.least_squares import FitReport, fit_tikhonov
@@ -96,7 +97,15 @@ def fit_turns(tr: Transitions, u_prev: np.ndarray, u_meas: np.ndarray, bias: np.
     def jac(theta: np.ndarray) -> np.ndarray:
         return tr.jacobian(model_of, theta, u_prev)
 
-    return fit_tikhonov(res, jac, start, theta0, lam, start_name=start_name)
+    try:
+        return fit_tikhonov(res, jac, start, theta0, lam, start_name=start_name)
+    except FloatingPointError:
+        # RK4 over steps far longer than a turn (a wrong --rate, a timestamp unit off by 1000)
+        # overflows the quaternions: the data, not a bug (issue 27).
+        raise ImucalError("the turns cannot be integrated: the predicted gravity is not finite "
+                          "at the start of the fit; the sample period is far too long for the "
+                          "turns' rates (check --rate or the time column's unit)",
+                          source="gyroscope", field="fit") from None
 
 
 def _held_out_angles(tr: Transitions, report: FitReport, theta0: np.ndarray, lam: float,

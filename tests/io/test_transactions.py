@@ -14,6 +14,7 @@ layout module imported, the commit's first backup link). The product has no test
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 import json
 import os
@@ -31,7 +32,7 @@ import pytest
 import imucal
 from imucal.cli.main import main
 from imucal.errors import ImucalError
-from imucal.io.atomic import PREFIX, Transaction
+from imucal.io.atomic import OWNER_SUFFIX, PREFIX, Transaction, owner_record
 from imucal.io.export import write_session_mat
 from imucal.synth import make_session
 
@@ -39,7 +40,8 @@ BIN = Path(sys.executable).parent
 IMUCAL = shutil.which("imucal", path=str(BIN)) or str(BIN / "imucal")
 ALL_OUTPUTS = ["--out", "calib.json", "--calibrated", "cal.csv", "--rrd", "run.rrd"]
 # What the output directory holds before each run: other content than any run writes, and a
-# previous run's gyroscope sidecar (this session's gyroscope shares the accelerometer's clock).
+# previous run's gyroscope sidecar with the record that imucal wrote it (this session's gyroscope
+# shares the accelerometer's clock).
 OLD = {"calib.json": b'{"previous": "calib"}\n', "cal.csv": b"t,ax\n0,1\n",
        "cal.gyro.csv": b"t,gx\n0,0\n", "run.rrd": b"RRF2 old"}
 
@@ -85,7 +87,9 @@ def snapshot(d: Path) -> dict[str, bytes]:
 
 
 def leftovers(d: Path) -> list[str]:
-    return sorted(p.name for p in d.iterdir() if p.name.startswith(PREFIX))
+    """Temporaries and lock files (a record that imucal wrote a file stays with the file)."""
+    return sorted(p.name for p in d.iterdir() if p.name.startswith(PREFIX)
+                  and not p.name.endswith(OWNER_SUFFIX))
 
 
 def fresh_dir(root: Path, name: str, files: dict[str, bytes] = OLD) -> Path:
@@ -93,6 +97,8 @@ def fresh_dir(root: Path, name: str, files: dict[str, bytes] = OLD) -> Path:
     d.mkdir()
     for n, b in files.items():
         (d / n).write_bytes(b)
+        if n.endswith(".gyro.csv"):  # as a previous run leaves it (sha256sum's line)
+            owner_record(d / n).write_text(f"{hashlib.sha256(b).hexdigest()}  {n}\n")
     return d
 
 
