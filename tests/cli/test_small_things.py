@@ -209,7 +209,12 @@ def test_noise_with_a_calibration_reads_the_units_it_states(deg_calibration, tmp
 
 
 def test_noise_gives_no_kalibr_block_for_a_recording_that_moved(tmp_path, capsys):
-    rc, out, err = cli(capsys, "noise", SAMPLE, "--gyro-unit", "rad/s", "--out",
+    from tests.stages.test_noise_not_still import tilting_csv
+
+    rc, _, err = cli(capsys, "noise", SAMPLE, "--gyro-unit", "rad/s")  # poses and turns
+    assert "is mostly motion, not a still recording" in one_error_line(rc, err)
+    SLOW = tilting_csv(tmp_path / "tilt.csv")  # still second by second, tilting over minutes
+    rc, out, err = cli(capsys, "noise", SLOW, "--gyro-unit", "rad/s", "--out",
                        tmp_path / "n.json")
     assert rc == 0, err
     assert "does not look still" in out
@@ -217,7 +222,7 @@ def test_noise_gives_no_kalibr_block_for_a_recording_that_moved(tmp_path, capsys
     assert "noise_density:" not in out and "update_rate:" not in out
     doc = json.loads((tmp_path / "n.json").read_text())
     assert doc["still"] is False and doc["kalibr"] is None
-    rc, _, err = cli(capsys, "noise", SAMPLE, "--gyro-unit", "rad/s", "--kalibr",
+    rc, _, err = cli(capsys, "noise", SLOW, "--gyro-unit", "rad/s", "--kalibr",
                      tmp_path / "imu.yaml", "--out", tmp_path / "m.json")
     assert "not still" in one_error_line(rc, err)
     assert not (tmp_path / "imu.yaml").exists() and not (tmp_path / "m.json").exists()
