@@ -78,6 +78,8 @@ def positive(value: float | None) -> float | None:
 def sample_rate(value: float | None) -> float | None:
     """--rate: positive, and a usage error (exit 2) below what any IMU records, which only
     overflows the timestamps (issue 27); above the highest, the loader says so."""
+    if value is None:
+        return None  # no --rate: nothing to import (the limit's module imports numpy)
     from imucal.io.time_base import MIN_RATE_HZ
 
     if positive(value) is not None and value < MIN_RATE_HZ:

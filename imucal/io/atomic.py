@@ -184,7 +184,9 @@ class Transaction:
 
     def __enter__(self) -> Transaction:
         try:
-            for out in sorted(self._outputs, key=lambda o: str(o.target)):
+            # the outputs first, then their owner records (each set in path order, the same
+            # order in every run): a busy output is named as the user named it
+            for out in sorted(self._outputs, key=lambda o: (o.is_record, str(o.target))):
                 self._lock(out)
             for out in self._outputs:
                 if out.owned is not None:
@@ -281,7 +283,12 @@ class Transaction:
     def _failing_as(self, out: _Output) -> Iterator[None]:
         try:
             yield
-        except ImucalError:
+        except ImucalError as e:
+            if e.source and Path(e.source).name.startswith(PREFIX):
+                # a writer's own atomic write of our temporary failed: name the user's file
+                raise ImucalError(e.problem.replace("the previous file, if any, is unchanged",
+                                                    "no output was changed"),
+                                  source=out.shown, field=e.field) from None
             raise
         except Exception as e:
             why = io_problem(e)
