@@ -3,10 +3,9 @@ file ``imucal noise --out`` writes."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from imucal.io.json_numbers import json_number as _f
 from imucal.stages.noise import AXES, NoiseReport, SensorNoise
 
 METHOD = ("overlapping Allan deviation at octave taus (IEEE Std 952-1997 Annex C); fit "
@@ -15,13 +14,6 @@ METHOD = ("overlapping Allan deviation at octave taus (IEEE Std 952-1997 Annex C
           "random walk) the slope +1/2 line at tau = 3 s; bias instability = minimum deviation "
           "/ 0.664. *_rel_err: about one standard error, relative. null: not determined by "
           "these data (see notes)")
-
-
-def _f(x: float | None) -> float | None:
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 def sensor_dict(sn: SensorNoise) -> dict:
