@@ -5,12 +5,10 @@ and renamed into place only when all of them are complete.
   not replace (a device, a FIFO, /dev/stdout, a directory, a read-only file, an input, ...).
 - :class:`Transaction` locks the set of outputs against another imucal run (an ``fcntl`` lock
   on a small lock file beside each target, removed afterwards), hands out short temporary
-  names, and commits: the renames run with SIGINT/SIGTERM/SIGHUP held back (they take effect
-  once every output is in place), and if one of them fails the targets already renamed get
-  their previous content back (a hard link kept as backup).
-  On any error or interrupt before that, every temporary is removed and no previous file is
-  touched. A SIGKILL leaves hidden ``.imucal-*`` temporaries; the next run on the same
-  outputs, holding their locks, removes them.
+  names, and commits: the renames run with SIGINT/SIGTERM/SIGHUP held back, and if one fails
+  the targets already renamed get their previous content back (a hard link kept as backup).
+  Any error or interrupt before that removes every temporary and touches no previous file; a
+  SIGKILL leaves hidden ``.imucal-*`` temporaries, which the next run on them removes.
 - ``owned`` targets (a file imucal names itself, such as a table's gyroscope sidecar) are
   replaced or removed only when imucal can prove it wrote them: commit leaves a record of each
   beside it (``.imucal-TAG.owner``, the file's SHA-256 as ``sha256sum`` writes it), and a run
@@ -184,8 +182,7 @@ class Transaction:
 
     def __enter__(self) -> Transaction:
         try:
-            # the outputs first, then their owner records (each set in path order, the same
-            # order in every run): a busy output is named as the user named it
+            # outputs, then owner records, each in path order: a busy one is named as given
             for out in sorted(self._outputs, key=lambda o: (o.is_record, str(o.target))):
                 self._lock(out)
             for out in self._outputs:
@@ -284,8 +281,7 @@ class Transaction:
         try:
             yield
         except ImucalError as e:
-            if e.source and Path(e.source).name.startswith(PREFIX):
-                # a writer's own atomic write of our temporary failed: name the user's file
+            if e.source and Path(e.source).name.startswith(PREFIX):  # our temporary: name
                 raise ImucalError(e.problem.replace("the previous file, if any, is unchanged",
                                                     "no output was changed"),
                                   source=out.shown, field=e.field) from None

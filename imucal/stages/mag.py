@@ -501,6 +501,11 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
     t = np.asarray(stream.t, float)
     finite = np.isfinite(x).all(axis=1) & np.isfinite(t)
     x, t = x[finite], t[finite]
+    if len(x) < 10 or not np.ptp(x, axis=0).all():
+        # a sender that fills the fields with zeros (MAVLink without a compass), or a stream
+        # cut to nothing: no field to fit
+        raise MagUnfit(f"{len(x)} samples, and an axis that never changes: no magnetometer "
+                       "readings to fit")
     steps = _still_steps(x, t, None if block_times is None else np.asarray(block_times, float))
     prior = np.ones(len(t), bool)
     disturbances = []
