@@ -44,6 +44,10 @@ if TYPE_CHECKING:
 
 MAG_POINTS = 3000  # samples drawn in each 3D scene, at most
 LEFT_OUT = BEFORE
+# Points and lines sized on the screen (negative radii: UI points), whatever the field's unit
+# (gauss, uT, counts) and the zoom: a size in the scene's unit was invisible or a blob.
+POINT = -2.5
+LINE = -0.75
 
 
 def mag_stream(result: Result) -> tuple[MagFit, Stream] | None:
@@ -83,18 +87,18 @@ def log_magnetometer(result: Result, rec: rr.RecordingStream, rows: dict[str, in
     idx = shown_samples(fit, stream)
     used = fit.used[idx]
     colors = rgba(np.where(used, RAW, LEFT_OUT).tolist())
-    rec.log(P.MAG_RAW_SAMPLES, rr.Points3D(raw[idx], colors=colors, radii=0.004 * fit.field),
+    rec.log(P.MAG_RAW_SAMPLES, rr.Points3D(raw[idx], colors=colors, radii=POINT),
             rr.AnyValues(sample_index=idx, used=used), static=True)
     rec.log(P.MAG_RAW_ELLIPSOID, rr.LineStrips3D([fit.ellipsoid(u) for u in unit_circles()],
                                                  colors=rgba([GREY] * 5),
-                                                 radii=0.002 * fit.field), static=True)
+                                                 radii=LINE), static=True)
     cal_colors = rgba(np.where(used, CALIBRATED, LEFT_OUT).tolist())
     rec.log(P.MAG_CAL_SAMPLES, rr.Points3D(fit.apply(raw[idx]), colors=cal_colors,
-                                           radii=0.004 * fit.field),
+                                           radii=POINT),
             rr.AnyValues(sample_index=idx, used=used), static=True)
     rec.log(P.MAG_CAL_SPHERE, rr.LineStrips3D([fit.field * u for u in unit_circles()],
                                               colors=rgba([GREY] * 5),
-                                              radii=0.002 * fit.field), static=True)
+                                              radii=LINE), static=True)
 
     err = 100.0 * fit.norm_error(raw)  # NaN on the rows that are not finite
     ok = np.isfinite(err) & np.isfinite(t)

@@ -141,3 +141,58 @@ def test_tab_only_with_a_magnetometer(mag, tmp_path):
     save_recording(plain, rrd)
     assert not [e for e in rb.entities(rrd) if e.startswith("magnetometer")]
     assert "Magnetometer" not in [t.name for t in blueprint(plain).root_container.contents]
+
+
+@pytest.mark.viewer
+def test_native_viewer_draws_the_magnetometer_tab(native_viewer, mag, tmp_path):
+    """The tab as a person sees it (headless native viewer): every view has drawn data, the
+    3D scenes the samples' colours (orange raw, blue calibrated). ``IMUCAL_SCREENSHOT_DIR``
+    keeps the tab's screenshot (docs/tab-magnetometer.png, in README)."""
+    import time
+
+    from test_viewer_screens import (
+        _colourful,
+        _image,
+        _keep,
+        _shot,
+        _show_tab,
+        _tabs,
+        _wait,
+        headless_viewer,
+    )
+
+    from viewer.columns import CALIBRATED, RAW
+
+    _, _, rrd = mag
+    with headless_viewer(tmp_path) as client:
+        client.open([str(rrd)])
+        _wait(lambda: not client.get_state().loading, 30, "the recording to load")
+        bp = client.get_blueprint()
+        tabs = _tabs(bp.blueprint)
+        assert [name for _, name, _ in tabs][-2:] == ["Magnetometer", "Summary"]
+        ref, _, views = next(t for t in tabs if t[1] == "Magnetometer")
+        _show_tab(client, bp, ref)
+
+        def share(view) -> float:
+            img = _image(_shot(client, view[0]))
+            if view[1] == "TextDocument":
+                return float((img.max(axis=-1) > 150).mean())
+            if view[1] == "3D":  # the samples' own colour, the one the title names
+                colour = RAW if view[2].startswith("Raw") else CALIBRATED
+                c = np.array([(colour >> s) & 255 for s in (24, 16, 8)])
+                return float((np.abs(img - c).max(axis=-1) < 40).mean())
+            return float(_colourful(img).mean())
+
+        time.sleep(1.0)
+        deadline = time.monotonic() + 30
+        while True:
+            shares = {v[2]: share(v) for v in views}
+            if all(s > 0.002 for s in shares.values()) or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        _keep("tab-magnetometer.png", _shot(client))
+        assert all(s > 0.002 for s in shares.values()), shares
+        assert len(views) == 6
+        errors = [(v.name, r.summary) for v in client.get_state().views
+                  if v.visible for r in v.reports if r.severity.lower() == "error"]
+        assert not errors, errors
