@@ -15,6 +15,9 @@ Gravity         gravity arrows at the time cursor (3D) | angle measured-predicte
 L-curve         static norm error and the 9 accelerometer parameters against lambda (2D plots)
                 | the L-curve (its corner, or "no corner" when the fit is well posed)
 Optimiser       cost and parameters at each accepted step, one column per sensor (2D plots)
+Magnetometer    (a calibrated magnetometer only) raw field with the fitted ellipsoid | calibrated
+                field on its sphere, over the norm |m|/F − 1 and the dip per still block
+                against time, still blocks and disturbed parts as lanes | the note
 Summary         the markdown summary, full size
 =============== =================================================================================
 
@@ -36,6 +39,7 @@ from . import paths as P
 from .evidence import evidence_titles
 from .guide import guide_column
 from .layout import EVIDENCE_BOX, LCURVE_BOX, SWEEP_BOX, TRACE_BOX, TRACE_BOX_WIDE, Box
+from .magnetometer import mag_titles
 from .optimiser import WHATS, cost_title
 from .ranges import robust_range
 from .signal_rows import SignalRows, signal_rows
@@ -216,6 +220,34 @@ def _optimiser(result: Result | None, gyro: bool) -> rrb.Horizontal:
     return rrb.Horizontal(*columns, name="Optimiser")
 
 
+def _scene3d(name: str, origin: str) -> rrb.Spatial3DView:
+    return rrb.Spatial3DView(name=name, origin=origin, contents=[f"{origin}/**"],
+                             line_grid=rrb.LineGrid3D(visible=False),
+                             eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital))
+
+
+def _magnetometer(result: Result) -> rrb.Horizontal:
+    """The raw field with the fitted ellipsoid and the calibrated field on its sphere, over
+    the norm and the dip per still block against time with the still blocks and the disturbed
+    parts as lanes; the note (figures, coverage, what was left out) beside
+    (:mod:`viewer.magnetometer`)."""
+    raw_title, cal_title = mag_titles(result)
+    lanes = rrb.StateTimelineView(name="Still blocks (green), disturbed field (red: norm, "
+                                  "orange: dip, purple: step)", origin="/",
+                                  contents=[P.DETECTOR_BLOCKS, P.MAG_DISTURBED],
+                                  time_view=_whole_axis())
+    return rrb.Horizontal(
+        rrb.Vertical(
+            rrb.Horizontal(_scene3d(raw_title, P.MAG_RAW), _scene3d(cal_title, P.MAG_CALIBRATED)),
+            _ts("Field norm |m|/F − 1 (%): used blue, left out red",
+                P.MAG_NORM_USED, P.MAG_NORM_LEFT_OUT),
+            _ts("Dip per still block (deg): used blue, left out red; fitted grey",
+                P.MAG_DIP_USED, P.MAG_DIP_LEFT_OUT, P.MAG_DIP_FIT),
+            lanes, row_shares=[3.0, 1.2, 1.2, 0.8]),
+        rrb.TextDocumentView(name="Magnetometer", origin=P.MAG_NOTE),
+        column_shares=[4, 1], name="Magnetometer")
+
+
 def blueprint(result: Result | None = None, active_tab: int | str = 0,
               signals: SignalRows | None = None) -> rrb.Blueprint:
     """The layout; ``result`` decides which views there are (gyroscope, L-curve, before) and
@@ -235,6 +267,8 @@ def blueprint(result: Result | None = None, active_tab: int | str = 0,
     if lcurve:
         tabs.append(_lcurve(result))
     tabs.append(_optimiser(result, gyro))
+    if result is not None and result.magnetometer is not None:
+        tabs.append(_magnetometer(result))
     tabs.append(rrb.TextDocumentView(name="Summary", origin=P.SUMMARY))
 
     if isinstance(active_tab, str):  # by name: tabs without data are left out

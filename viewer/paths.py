@@ -119,3 +119,20 @@ GUIDE_TURN_TILT = "guide_turns/tilt_deg"  # gravity moved by each turn, deg
 GUIDE_TURN_ANGLE = "guide_turns/angle_deg"  # integrated rotation angle, deg (NaN: none)
 GUIDE_TURN_MIN_TILT = "guide_turns/min_tilt_deg"  # a line
 GUIDE_INFO = "guide/info"  # static AnyValues: limits, their sources, the verdict
+
+# The Magnetometer tab (:mod:`viewer.magnetometer`): only for a session whose magnetometer was
+# calibrated (``Result.magnetometer``, M8). 3D scenes static, at most MAG_POINTS samples each.
+MAG_RAW = "magnetometer/raw"  # the raw scene's origin (raw unit, the magnetometer's frame)
+MAG_RAW_SAMPLES = "magnetometer/raw/samples"  # Points3D + AnyValues sample_index, used
+MAG_RAW_ELLIPSOID = "magnetometer/raw/ellipsoid"  # LineStrips3D: MagFit.ellipsoid on circles
+MAG_CALIBRATED = "magnetometer/calibrated"  # the calibrated scene's origin (raw unit)
+MAG_CAL_SAMPLES = "magnetometer/calibrated/samples"  # Points3D MagFit.apply, same samples
+MAG_CAL_SPHERE = "magnetometer/calibrated/sphere"  # LineStrips3D: circles of radius F
+MAG_NORM_USED = "magnetometer_norm/used_pct"  # Scalars 100 (|m|/F - 1), samples the fit used
+MAG_NORM_LEFT_OUT = "magnetometer_norm/left_out_pct"  # ... the samples left out (disturbed)
+MAG_DISTURBED = "magnetometer_norm/disturbed"  # StateChange: MagFit.disturbances' kind / reset
+MAG_DIP_USED = "magnetometer_dip/used_deg"  # Scalars per still block at its middle
+MAG_DIP_LEFT_OUT = "magnetometer_dip/left_out_deg"  # blocks not used for R_am and the dip
+MAG_DIP_FIT = "magnetometer_dip/fitted_deg"  # MagFit.dip_deg, 2 rows (a line)
+MAG_INFO = "magnetometer/info"  # static AnyValues: the fit's figures (MagQuality's)
+MAG_NOTE = "magnetometer/note"  # static TextDocument (markdown): coverage, disturbances

@@ -105,6 +105,24 @@ calibration/info                             static     AnyValues: source, sha25
                                                         lambda, n_blocks, n_segments, grouping,
                                                         settings (JSON), warnings (text),
                                                         warning_codes
+magnetometer/raw/samples                     static     Points3D raw field (raw unit), every k-th
+                                                        sample (at most 3000), orange used / red
+                                                        left out; AnyValues sample_index, used
+magnetometer/raw/ellipsoid                   static     LineStrips3D ``MagFit.ellipsoid`` (b + F
+                                                        M^-1 u) over circles of unit directions
+magnetometer/calibrated/samples | sphere     static     Points3D ``MagFit.apply`` of the same
+                                                        samples; LineStrips3D circles of radius F
+magnetometer_norm/used_pct | left_out_pct    time       Scalars 100 ``MagFit.norm_error`` (%) of
+                                                        the samples ``MagFit.used`` / not (*)
+magnetometer_norm/disturbed                  time       StateChange kind of each
+                                                        ``MagFit.disturbances`` / reset at its end
+magnetometer_dip/used_deg | left_out_deg     time       Scalars ``block_dip_deg`` at each block's
+                                                        middle (``MagFit.block_times``), split by
+                                                        ``block_used``
+magnetometer_dip/fitted_deg                  time       Scalars ``MagFit.dip_deg``, 2 rows
+magnetometer/info                            static     AnyValues: field, dip, quality figures,
+                                                        coverage, missing, disturbances (text)
+magnetometer/note                            static     TextDocument (markdown): the same, read
 =========================================== ========== ============================================
 
 (*) Signals longer than ``SCREEN_ROWS`` (20 000) samples are logged as a min/max envelope of at
@@ -125,7 +143,8 @@ decimation. One module per tab maps its entities: :mod:`viewer.signals` (Overvie
 :mod:`viewer.gravity`, :mod:`viewer.lcurve`, :mod:`viewer.optimiser`, :mod:`viewer.summary`.
 
 The gyroscope entities exist only for a session with a gyroscope; the L-curve and ``lambda``
-entities only when lambda was chosen by the L-curve (not fixed).
+entities only when lambda was chosen by the L-curve (not fixed); the ``magnetometer*``
+entities only when the session's magnetometer was calibrated (``Result.magnetometer``).
 """
 
 from __future__ import annotations
@@ -145,6 +164,7 @@ from .evidence import log_evidence
 from .gravity import log_gravity
 from .guide import log_guide
 from .lcurve import log_lcurves
+from .magnetometer import log_magnetometer
 from .optimiser import log_iterations
 from .signal_rows import SignalRows, signal_rows
 from .signals import log_block_errors, log_detector, log_signals
@@ -175,6 +195,7 @@ def log_result(result: Result, rec: rr.RecordingStream, signals: SignalRows | No
     log_guide(result, rec, rows)
     log_lcurves(result, rec, rows)
     log_iterations(result, rec, rows)
+    log_magnetometer(result, rec, rows)
     log_results(result, rec)
     return rows
 

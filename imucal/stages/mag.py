@@ -173,10 +173,19 @@ class MagFit:
     # False: too few field directions for the ellipsoid; M held at the identity, b and the
     # field fitted (a sphere)
     soft_iron: bool = True
+    # (B, 2) [t_start, t_end] (s) of the still blocks that block_dip_deg and block_used follow
+    # (the stream's clock); None when no blocks were given
+    block_times: np.ndarray | None = None
 
     @property
     def G(self) -> np.ndarray:
         return self.M / self.field
+
+    def ellipsoid(self, u: np.ndarray) -> np.ndarray:
+        """The fitted ellipsoid in the raw frame: the raw field ``b + F M^-1 u`` (K, 3) whose
+        calibrated norm is the field (M8: ``|M (m_raw - b)| = F``) at the unit directions
+        ``u`` (K, 3) of the magnetometer's corrected frame."""
+        return self.b + self.field * np.linalg.solve(self.M, np.asarray(u, float).T).T
 
     def apply(self, raw: np.ndarray) -> np.ndarray:
         """Calibrated field (N, 3) in the raw unit, in the accelerometer's calibrated frame
@@ -619,7 +628,9 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
                   stream=stream.name, samples=len(stream.t), used=_full_mask(finite, keep),
                   start=fit.start, disturbances=tuple(disturbances), quality=quality,
                   block_dip_deg=block_dip, block_used=block_used, warnings=tuple(warnings),
-                  soft_iron=fit.model != "sphere")
+                  soft_iron=fit.model != "sphere",
+                  block_times=None if block_times is None
+                  else np.array(block_times, float).reshape(-1, 2))
 
 
 def _full_mask(finite: np.ndarray, keep: np.ndarray) -> np.ndarray:
