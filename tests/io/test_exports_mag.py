@@ -25,7 +25,7 @@ import pytest
 import imucal
 from imucal.io.exports import FORMATS, export
 from imucal.synth import make_session
-from tests.io.test_exports import _compile, needs_gcc, read_yaml
+from tests.io.test_exports import _FUSION_STANDIN, _compile, needs_gcc, read_yaml
 
 H = 0.70710678118654757  # ArduPilot's HALF_SQRT_2
 
@@ -187,7 +187,7 @@ def test_autopilot_without_r_am_or_a_physical_unit(mag, tmp_path):
     export(no_r, "ardupilot", tmp_path / "a")
     text = (tmp_path / "a").read_text()
     p = _params(text, ",")
-    assert "COMPASS_ORIENT" not in p and "R_am was not estimated" in text
+    assert "COMPASS_ORIENT" not in p and "holds no R_am" in text
     p["COMPASS_ORIENT"] = "0"  # the sensor's own frame
     fit = result.magnetometer
     want = (raw - fit.b) @ fit.M.T
@@ -219,6 +219,52 @@ def test_fusion_soft_iron_has_the_rotation_folded_in(mag, tmp_path):
     want = result.magnetometer.apply(raw)
     assert np.max(np.abs(got - want)) < 2e-6 * np.abs(want).max()  # float: ~7 digits
     assert "imucalAccelerometerMisalignment" in c  # the rest is still there
+
+
+_FUSION_MAGNETIC = r"""
+/* FusionCalibrationMagnetic as Fusion's FusionCalibration.h writes it. */
+static inline FusionVector FusionCalibrationMagnetic(const FusionVector u, const FusionMatrix s,
+                                                     const FusionVector h) {
+    FusionVector d, r; int i;
+    for (i = 0; i < 3; i++) d.array[i] = u.array[i] - h.array[i];
+    for (i = 0; i < 3; i++)
+        r.array[i] = s.array[i][0] * d.array[0] + s.array[i][1] * d.array[1]
+                   + s.array[i][2] * d.array[2];
+    return r;
+}
+"""
+
+_FUSION_MAG_MAIN = r"""
+#include <stdio.h>
+#include "export.h"
+int main(void) {
+    float x, y, z;
+    while (scanf(" %f %f %f", &x, &y, &z) == 3) {
+        FusionVector u = {{x, y, z}};
+        FusionVector c = FusionCalibrationMagnetic(u, imucalSoftIronMatrix, imucalHardIronOffset);
+        printf("%.9g %.9g %.9g\n", c.axis.x, c.axis.y, c.axis.z);
+    }
+    return 0;
+}
+"""
+
+
+@needs_gcc
+def test_fusion_header_compiles_with_the_magnetometer(mag, tmp_path):
+    import subprocess
+
+    path, _, result, raw = mag
+    export(path, "fusion", tmp_path / "fusion.h")
+    text = (tmp_path / "fusion.h").read_text().replace(
+        '#include "Fusion.h"', _FUSION_STANDIN + _FUSION_MAGNETIC)
+    exe = _compile(tmp_path, {"export.h": text, "main.c": _FUSION_MAG_MAIN})
+    idx = np.arange(0, len(raw), 41)
+    out = subprocess.run([str(exe)], input="\n".join(" ".join(f"{v:.9g}" for v in raw[i])
+                                                       for i in idx),
+                         capture_output=True, text=True, timeout=60).stdout
+    got = np.array(out.split(), dtype=float).reshape(-1, 3)
+    want = result.magnetometer.apply(raw[idx])
+    assert np.max(np.abs(got - want)) < 2e-6 * np.abs(want).max()  # float arithmetic
 
 
 _C_MAG_MAIN = r"""

@@ -19,6 +19,9 @@ blocks' times, not their mean readings): the vector error ``|K ⊙ (a_raw - b) -
 device reading |g| in each direction, RMS and maximum, in mg. The gyroscope keeps only its
 offset: its scale and misalignment are dropped, and the rate error is given in % of the rate.
 Both autopilots re-estimate gyroscope offsets at start-up, so those values are a starting point.
+
+A calibrated magnetometer adds ArduPilot's ``COMPASS_OFS/DIA/ODI/ORIENT`` and PX4's
+``CAL_MAG0_*`` (:mod:`imucal.io.exports.mag`, where the targets' equations are stated).
 """
 
 from __future__ import annotations

@@ -194,7 +194,7 @@ def ardupilot_mag(mag: MagModel) -> Autopilot:
                 f"{mag.field * c:.4g} mG here; set COMPASS_MOTCT 0, COMPASS_SCALE 1"]
     if mag.R_am is None:
         R_o = np.eye(3)
-        notes = ["magnetometer: R_am was not estimated (too few still blocks): COMPASS_ORIENT "
+        notes = ["magnetometer: calib.json holds no R_am (not estimated): COMPASS_ORIENT "
                  "not written, the offsets and matrix are for the sensor's own frame"]
         rows: list[tuple[str, float]] = []
     else:
@@ -227,7 +227,7 @@ def px4_mag(mag: MagModel) -> Autopilot:
     rows += [(f"CAL_MAG0_{a}ODIAG", mag.M[i, j])
              for a, (i, j) in zip("XYZ", ((0, 1), (0, 2), (1, 2)))]
     if mag.R_am is None:
-        notes = ["magnetometer: R_am was not estimated (too few still blocks): CAL_MAG0_ROT "
+        notes = ["magnetometer: calib.json holds no R_am (not estimated): CAL_MAG0_ROT "
                  "not written"]
     else:
         code, _, angle = nearest_orientation(mag.R_am, PX4_ROT)
