@@ -199,7 +199,9 @@ def ardupilot_mag(mag: MagModel) -> Autopilot:
         rows: list[tuple[str, float]] = []
     else:
         code, R_o, angle = nearest_orientation(mag.R_am, ARDUPILOT_ORIENT)
-        notes = [_residual_words("ArduPilot", "COMPASS_ORIENT", code, angle, mag.R_am)]
+        notes = [_residual_words("ArduPilot", "COMPASS_ORIENT", code, angle, mag.R_am)
+                 + "; COMPASS_ORIENT applies to an external compass (COMPASS_EXTERNAL 1; an "
+                   "internal one takes AHRS_ORIENTATION)"]
         rows = [("COMPASS_ORIENT", float(code))]
     S = R_o @ mag.M @ R_o.T
     ofs = -c * (R_o @ mag.b)
