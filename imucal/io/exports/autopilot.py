@@ -19,6 +19,9 @@ blocks' times, not their mean readings): the vector error ``|K ⊙ (a_raw - b) -
 device reading |g| in each direction, RMS and maximum, in mg. The gyroscope keeps only its
 offset: its scale and misalignment are dropped, and the rate error is given in % of the rate.
 Both autopilots re-estimate gyroscope offsets at start-up, so those values are a starting point.
+
+A calibrated magnetometer adds ArduPilot's ``COMPASS_OFS/DIA/ODI/ORIENT`` and PX4's
+``CAL_MAG0_*`` (:mod:`imucal.io.exports.mag`, where the targets' equations are stated).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from imucal.io.exports.common import (
     require_gyro_rad,
     si_acc_factors,
 )
+from imucal.io.exports.mag import ardupilot_mag, px4_mag
 from imucal.models import SensorModel
 
 
@@ -81,9 +85,13 @@ def px4(inp: ExportInput, out: Path, segment: int | None) -> Exported:
     require_gyro_rad(inp, "px4")
     off, scale = diagonal_acc(seg.acc, c_in, c_out)
     notes = _losses(inp, seg)
+    mag = px4_mag(inp.magnetometer) if inp.magnetometer is not None else None
+    if mag is not None:
+        notes += mag.notes
     lines = [f"# {h}" for h in ["PX4 parameters: a = (a_m - CAL_ACC0_xOFF) * CAL_ACC0_xSCALE "
                                 "(m/s^2, sensor frame); w = w_m - CAL_GYRO0_xOFF (rad/s)",
                                 *inp.header_lines(), *notes,
+                                *(mag.comments if mag is not None else []),
                                 "set CAL_ACC0_ID / CAL_GYRO0_ID to your sensors' device ids",
                                 "Vehicle-Id Component-Id Name Value Type"]]
     rows = [(f"CAL_ACC0_{a}OFF", o) for a, o in zip("XYZ", off)]
@@ -91,6 +99,9 @@ def px4(inp: ExportInput, out: Path, segment: int | None) -> Exported:
     if seg.gyro is not None:
         rows += [(f"CAL_GYRO0_{a}OFF", o) for a, o in zip("XYZ", seg.gyro.b)]
     lines += [f"1\t1\t{name}\t{fmt_num(v)}\t9" for name, v in rows]
+    if mag is not None:  # CAL_MAG0_ROT is an INT32 parameter (type 6)
+        lines += [f"1\t1\t{name}\t{int(v)}\t6" if name.endswith("_ROT") else
+                  f"1\t1\t{name}\t{fmt_num(v)}\t9" for name, v in mag.rows]
     return Exported(files=[(out, "\n".join(lines) + "\n")],
                     notes=notes + _segment_note(inp, index))
 
@@ -105,14 +116,21 @@ def ardupilot(inp: ExportInput, out: Path, segment: int | None) -> Exported:
     if np.any(np.abs(off) > 3.5) or np.any(np.abs(scale - 1.0) > 0.2):
         notes.append("outside ArduPilot's accepted range (|offset| <= 3.5 m/s^2, scale "
                      "0.8..1.2): it will refuse these values")
+    mag = ardupilot_mag(inp.magnetometer) if inp.magnetometer is not None else None
+    if mag is not None:
+        notes += mag.notes
     lines = [f"# {h}" for h in ["ArduPilot parameters: accel -= INS_ACCOFFS; accel *= "
                                 "INS_ACCSCAL (m/s^2, after the sensor's orientation); gyro -= "
-                                "INS_GYROFFS (rad/s)", *inp.header_lines(), *notes]]
+                                "INS_GYROFFS (rad/s)", *inp.header_lines(), *notes,
+                                *(mag.comments if mag is not None else [])]]
     rows = [(f"INS_ACCOFFS_{a}", o) for a, o in zip("XYZ", off)]
     rows += [(f"INS_ACCSCAL_{a}", s) for a, s in zip("XYZ", scale)]
     if seg.gyro is not None:
         rows += [(f"INS_GYROFFS_{a}", o) for a, o in zip("XYZ", seg.gyro.b)]
-    lines += [f"{name},{fmt_num(v)}" for name, v in rows]
+    if mag is not None:
+        rows += mag.rows
+    lines += [f"{name},{int(v)}" if name == "COMPASS_ORIENT" else f"{name},{fmt_num(v)}"
+              for name, v in rows]
     return Exported(files=[(out, "\n".join(lines) + "\n")],
                     notes=notes + _segment_note(inp, index))
 

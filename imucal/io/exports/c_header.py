@@ -7,6 +7,11 @@ i over [t_start, t_end] (the first from the start of time, the last to its end),
 two segments the parameter-wise mean of the two (method.md §2), precomputed here. Time is in
 seconds on the calibration session's clock; with one segment it does not matter.
 
+A calibrated magnetometer (calib.json's ``magnetometer``, method.md M8, one model for the whole
+session) adds ``imucal_mag_M``, ``imucal_mag_b``, ``imucal_mag_R_am`` and
+``imucal_calibrate_magnetometer(raw, out)``: ``out = R_am M (raw - b)`` in the field's raw unit,
+in the accelerometer's calibrated frame (``R_am M`` precomputed as the piece ``imucal_mag``).
+
 Arithmetic in ``IMUCAL_REAL`` (``double`` unless defined before the include, e.g. ``float`` on
 an FPU without doubles); the constants are written with 17 significant digits. C99, no
 library: only ``static const`` tables and ``static inline`` functions.
@@ -19,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from imucal.io.exports.common import Exported, ExportInput, fmt_num, piece_models
+from imucal.io.exports.mag import MagModel
 from imucal.models import SensorModel
 
 _PRELUDE = """\
@@ -64,11 +70,10 @@ static inline void imucal_apply_piece(const imucal_piece *p, const imucal_real r
 """
 
 
-def _piece(t0: float, t1: float, model: SensorModel) -> str:
-    a = model.matrix
+def _piece(t0: float, t1: float, a: np.ndarray, b: np.ndarray) -> str:
     rows = ", ".join("{" + ", ".join(fmt_num(v) for v in row) + "}" for row in a)
     return (f"    {{{_time(t0)}, {_time(t1)}, {{{rows}}}, "
-            f"{{{', '.join(fmt_num(v) for v in model.b)}}}}},")
+            f"{{{', '.join(fmt_num(v) for v in b)}}}}},")
 
 
 def _time(t: float) -> str:
@@ -85,7 +90,8 @@ def _table(name: str, pieces: list[tuple[str, float, float, SensorModel | None]]
             # A segment owns its closed interval: the gap starts just after its end.
             t0 = float(np.nextafter(t0, np.inf))
         # The first piece reaches back to the start of time, the last on to its end.
-        lines.append(_piece(-np.inf if i == 0 else t0, np.inf if i == n - 1 else t1, model))
+        lines.append(_piece(-np.inf if i == 0 else t0, np.inf if i == n - 1 else t1,
+                            model.matrix, model.b))
     lines.append("};")
     return lines
 
@@ -98,6 +104,33 @@ def _function(sensor: str, name: str, unit_in: str, unit_out: str) -> list[str]:
             f"    imucal_apply_piece(imucal_piece_at({name}_pieces, {name.upper()}_PIECES, t), "
             "raw, out);",
             "}", ""]
+
+
+def _matrix(name: str, m: np.ndarray) -> str:
+    rows = ", ".join("{" + ", ".join(fmt_num(v) for v in row) + "}" for row in m)
+    return f"static const imucal_real {name}[3][3] = {{{rows}}};"
+
+
+def _magnetometer(mag: MagModel) -> list[str]:
+    R = np.eye(3) if mag.R_am is None else mag.R_am
+    lines = ["/* magnetometer (method.md M8): out = R_am M (raw - b), raw and out in "
+             f"{mag.unit}, out in the", " * accelerometer's calibrated frame"
+             + (" (R_am not estimated: the identity, the magnetometer's own frame)"
+                if mag.R_am is None else "") + "; one model for the whole session. */",
+             "#define IMUCAL_HAS_MAGNETOMETER 1",
+             _matrix("imucal_mag_M", mag.M),
+             f"static const imucal_real imucal_mag_b[3] = "
+             f"{{{', '.join(fmt_num(v) for v in mag.b)}}};",
+             _matrix("imucal_mag_R_am", R),
+             "static const imucal_piece imucal_mag = "
+             + _piece(-np.inf, np.inf, mag.A, mag.b).strip().rstrip(",") + ";",
+             "",
+             "static inline void imucal_calibrate_magnetometer(const imucal_real raw[3], "
+             "imucal_real out[3])",
+             "{",
+             "    imucal_apply_piece(&imucal_mag, raw, out);",
+             "}", ""]
+    return lines
 
 
 def export(inp: ExportInput, out: Path, segment: int | None) -> Exported:
@@ -122,8 +155,14 @@ def export(inp: ExportInput, out: Path, segment: int | None) -> Exported:
         lines += _function("gyroscope", "imucal_gyro",
                            gyro_in + (" (deg/s: convert first)" if gyro_in == "rad/s" else ""),
                            "rad/s")
+    mag = inp.magnetometer
+    if mag is not None:
+        lines += _magnetometer(mag)
     lines += ["#endif /* IMUCAL_CALIBRATION_H */", ""]
     notes = [f"the full model of {len(segs)} segment(s), both sensors" if has_gyro else
              f"the full model of {len(segs)} segment(s), accelerometer only",
              "exact in double precision; IMUCAL_REAL float keeps about 7 digits"]
+    if mag is not None:
+        notes.append(f"magnetometer: the full model M8, in {mag.unit}"
+                     + (" (R_am not estimated: the identity)" if mag.R_am is None else ""))
     return Exported(files=[(out, "\n".join(lines))], notes=notes)

@@ -18,6 +18,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.calibration_file import load_calibration
+from imucal.io.exports.mag import MagModel, read_mag
 from imucal.models import SensorModel
 from imucal.session import STANDARD_GRAVITY
 from imucal.stages.apply import Calibration, SegmentModels
@@ -35,6 +36,7 @@ class ExportInput:
     calibration: Calibration
     noise: dict | None  # the calib.json ``noise`` key (or a noise file's figures)
     source: dict  # the calib.json ``source`` key
+    magnetometer: MagModel | None = None  # its ``magnetometer`` section, when calibrated
 
     @property
     def has_gyro(self) -> bool:
@@ -94,7 +96,8 @@ def read_export_input(path: str | Path, noise_path: str | Path | None = None) ->
     noise = data.get("noise")
     if noise_path is not None:
         noise = _read_noise(Path(noise_path))
-    return ExportInput(path=path, calibration=cal, noise=noise, source=data.get("source") or {})
+    return ExportInput(path=path, calibration=cal, noise=noise, source=data.get("source") or {},
+                       magnetometer=read_mag(data, path))
 
 
 def _read_noise(path: Path) -> dict:

@@ -11,6 +11,12 @@ accelerometer in g and the gyroscope in degrees per second.
 - Gyroscope: input in deg/s (imucal's raw rad/s, offset x 180/pi) or in raw counts; output in
   deg/s (``s`` unchanged from rad/s input, since the degree factors cancel; x 180/pi for counts).
 
+A calibrated magnetometer (calib.json's ``magnetometer``, M8) adds Fusion's magnetic model,
+``m_c = softIronMatrix (m_u - hardIronOffset)`` (``FusionCalibrationMagnetic`` /
+``FusionModelMagnetic``): ``softIronMatrix = R_am M``, the rotation to the accelerometer's frame
+folded in, ``hardIronOffset = b``, in the magnetometer's raw unit (Fusion's AHRS uses the
+field's direction only).
+
 Nothing is lost (same equation) except precision: Fusion's types hold float (32-bit), about 7
 significant digits. One model: a calibration with several segments exports one chosen segment.
 """
@@ -82,6 +88,19 @@ def export(inp: ExportInput, out: Path, segment: int | None) -> Exported:
                  _vector(f"{prefix}Offset", b), ""]
         res.notes.append(f"{name}: input {unit_in}, output {unit_out}; same model, float "
                          "precision (about 7 digits)")
+    mag = inp.magnetometer
+    if mag is not None:
+        lines.append(f" * magnetometer: m_c = softIronMatrix (m_u - hardIronOffset), m_u and m_c "
+                     f"in {mag.unit}; softIronMatrix = R_am M"
+                     + (" (R_am not estimated: M alone, the magnetometer's own frame)"
+                        if mag.R_am is None else ""))
+        body += [_matrix("imucalSoftIronMatrix", mag.A), _vector("imucalHardIronOffset", mag.b),
+                 ""]
+        res.notes.append(f"magnetometer: softIronMatrix = R_am M, hardIronOffset = b, in "
+                         f"{mag.unit}; same model, float precision"
+                         + ("" if mag.R_am is not None else
+                            "; R_am was not estimated: the field stays in the magnetometer's "
+                            "own frame"))
     if len(inp.calibration.segments) > 1:
         lines.append(f" * segment {index} of {len(inp.calibration.segments)}")
         res.notes.append(f"segment {index} of {len(inp.calibration.segments)} only")

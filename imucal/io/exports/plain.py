@@ -4,8 +4,10 @@ Per sensor and piece of time: ``x = A (x_raw - b)`` with ``A = T K`` multiplied 
 given too), ``x_raw`` in the raw unit, ``x`` in the calibrated unit. The pieces are imucal's
 (method.md §2): each segment over its closed [t_start, t_end] (the first from the start of
 time, the last to its end), and between two segments, over the open gap, the parameter-wise
-mean of the two. The noise figures go along with their units. Nothing is lost: doubles are
-written with 17 significant digits (JSON) or their shortest exact form (YAML).
+mean of the two. The noise figures go along with their units, and a calibrated magnetometer
+(M8) its ``magnetometer`` entry: ``m = A (m_raw - b)``, ``A = R_am M``, with M, b, R_am.
+Nothing is lost: doubles are written with 17 significant digits (JSON) or their shortest exact
+form (YAML).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import math
 from pathlib import Path
 
 from imucal.io.exports.common import Exported, ExportInput, piece_models
+from imucal.io.exports.mag import plain_mag
 from imucal.io.exports.yaml_text import comment_block, dump
 from imucal.io.noise_json import kalibr_block
 from imucal.models import SensorModel
@@ -67,7 +70,7 @@ def document(inp: ExportInput, segment: int | None) -> dict:
         "noise": _noise_summary(inp.noise),
         "kalibr_noise": kalibr,
         "source": {"calibration": inp.path.name, **(inp.source or {})},
-    }
+    } | ({"magnetometer": plain_mag(inp.magnetometer)} if inp.magnetometer is not None else {})
 
 
 def _noise_summary(noise: dict | None) -> dict | None:
@@ -99,4 +102,6 @@ def to_yaml(inp: ExportInput, out: Path, segment: int | None) -> Exported:
 def _notes(inp: ExportInput, segment: int | None) -> list[str]:
     n = len(inp.calibration.segments)
     which = f"segment {segment} of {n}" if segment is not None else f"all {n} segment(s)"
-    return [f"the full model ({which}), with units; exact"]
+    return [f"the full model ({which}), with units; exact"] + (
+        [f"magnetometer: M, b, R_am and A = R_am M, in {inp.magnetometer.unit}; exact"]
+        if inp.magnetometer is not None else [])
