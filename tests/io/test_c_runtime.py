@@ -47,10 +47,11 @@ def build(cal: Calibration, d: Path) -> Path:
     return exe
 
 
-def run(exe: Path, session, d: Path) -> dict:
+def run(exe: Path, session, d: Path, first: int = 0) -> dict:
     np.column_stack([session.acc, session.gyro]).astype(np.float32).tofile(d / "in.bin")
-    out = subprocess.run([str(exe), "100", str(d / "in.bin"), str(d / "out.bin")],
-                         capture_output=True, text=True, check=True).stdout.splitlines()
+    out = subprocess.run([str(exe), "100", str(d / "in.bin"), str(d / "out.bin"), "1",
+                          str(first)], capture_output=True, text=True, check=True
+                         ).stdout.splitlines()
     rows = [[float(x) for x in line.split()[1:]] for line in out if line.startswith("moment")]
     moments = np.array(rows).reshape(-1, 9)
     values = {line.split()[0]: line.split()[1:] for line in out if not line.startswith("moment")}
@@ -68,22 +69,24 @@ def case(request, tmp_path_factory):
                                    drift=Drift(gyro_bias=GYRO_DRIFT))
     cal = calibration(truth)
     c = run(build(cal, d), session, d)
-    return session, truth, c, refresh(cal, STORED, session)
+    return session, truth, c, refresh(cal, STORED, session), d
+
+
 
 
 def test_the_module_is_c99_without_allocation_or_dependency(case, tmp_path):
-    session, truth, c, _ = case
+    session, truth, c, _, _ = case
     build(calibration(truth), tmp_path)  # -std=c99 -pedantic -Wconversion -Werror: clean
     text = (tmp_path / c_runtime.HEADER).read_text() + (tmp_path / c_runtime.SOURCE).read_text()
     assert set(re.findall(r"#include <([^>]+)>", text)) == {"math.h", "stdint.h"}
     assert not re.search(r"\b(malloc|calloc|realloc|free|double)\b", text)
     # the memory the header states is the compiler's sizeof
-    assert c["sizeof"] == c_runtime.state_bytes(c_runtime.DEFAULT_MAX_RATE_HZ) == 5240
-    assert "5240 bytes" in (tmp_path / c_runtime.HEADER).read_text()
+    assert c["sizeof"] == c_runtime.state_bytes(c_runtime.DEFAULT_MAX_RATE_HZ) == 5252
+    assert "5252 bytes" in (tmp_path / c_runtime.HEADER).read_text()
 
 
 def test_calibrated_samples_agree_with_python_apply_to_float32_rounding(case):
-    session, truth, c, _ = case
+    session, truth, c, _, _ = case
     out = c["out"]
     raw_a = session.acc.astype(np.float32).astype(np.float64)
     raw_g = session.gyro.astype(np.float32).astype(np.float64)
@@ -101,7 +104,7 @@ def test_calibrated_samples_agree_with_python_apply_to_float32_rounding(case):
 def test_the_still_moments_are_the_python_detectors(case):
     """Measured on walk, jumps and desk (seed 0: 14, 30, 58 moments): the same [start, end)
     to the sample, none refused, and none over a tap or typing."""
-    session, truth, c, r = case
+    session, truth, c, r, _ = case
     m = r.check.moments
     got = c["moments"]
     assert got[:, 2].all()
@@ -117,7 +120,7 @@ def test_the_still_moments_are_the_python_detectors(case):
 
 
 def test_the_refreshed_gyroscope_bias_is_pythons_and_the_truth(case):
-    session, truth, c, r = case
+    session, truth, c, r, _ = case
     # measured: at most 4e-7 deg/s from refresh.py's (float32 sums of float32 rates)
     np.testing.assert_allclose(np.degrees(c["bias"]), np.degrees(r.gyro.b), atol=1e-4)
     assert np.degrees(np.abs(c["bias"] - truth.gyro.b)).max() < 0.05  # measured 0.005
@@ -127,6 +130,30 @@ def test_the_refreshed_gyroscope_bias_is_pythons_and_the_truth(case):
     k = int(np.argmax(np.cumsum((got[:, 1] - 1 - got[:, 0]) / 100.0) >= 3.0))
     moved = np.flatnonzero(np.any(c["out"][:, 6:9] != np.float32(truth.stored_gyro.b), axis=1))
     assert moved[0] == got[k, 1] + 50
+
+
+def test_a_sample_count_that_wraps_past_2_32_changes_nothing(case):
+    """A wearable at 1 kHz counts past 2^32 samples in 49 days: the ring is addressed by age,
+    so numbering the samples from just below 2^32 gives the same moments and bias."""
+    session, truth, c, _, d = case
+    first = 2**32 - 20000  # wraps in the middle of the recording
+    wrapped = run(d / "driver", session, d, first)
+    got = (wrapped["moments"][:, :2].astype(np.int64) - first) % 2**32
+    np.testing.assert_array_equal(got, c["moments"][:, :2].astype(np.int64))
+    np.testing.assert_array_equal(wrapped["bias"], c["bias"])
+    np.testing.assert_array_equal(wrapped["out"], c["out"])
+
+
+def test_a_rate_beyond_the_state_is_refused(case):
+    session, _, _, _, d = case
+    np.zeros((10, 6), np.float32).tofile(d / "few.bin")
+    for rate in ("1000", "4"):  # above IMUCAL_RT_MAX_RATE_HZ = 200; too slow for a window
+        rc = subprocess.run([str(d / "driver"), rate, str(d / "few.bin"), str(d / "o.bin")],
+                            capture_output=True).returncode
+        assert rc == 5  # imucal_rt_init returned -1
+    rc = subprocess.run([str(d / "driver"), "200", str(d / "few.bin"), str(d / "o.bin")],
+                        capture_output=True).returncode
+    assert rc == 0
 
 
 def test_cli_writes_the_directory_and_refuses_a_calibration_without_noise(tmp_path, capsys):

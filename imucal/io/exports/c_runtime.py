@@ -77,7 +77,7 @@ _H = """\
  *
  * C99, float32, no allocation, no dependency beyond <math.h> and <stdint.h>.
  * Memory: one imucal_rt_state, owned by the caller (static or on the stack), of
- *   sizeof(imucal_rt_state) = 248 + 24 * IMUCAL_RT_RING bytes (every member 4 bytes), with
+ *   sizeof(imucal_rt_state) = 260 + 24 * IMUCAL_RT_RING bytes (every member 4 bytes), with
  *   IMUCAL_RT_RING = IMUCAL_RT_MAX_RATE_HZ + 8 samples (half a second of window and half a second
  *   of a moment's end); @BYTES@ bytes at the default IMUCAL_RT_MAX_RATE_HZ = @MAXRATE@
  *   (define it before including this header, and when compiling imucal_runtime.c, for another).
@@ -123,7 +123,10 @@ typedef struct {
     /* the last IMUCAL_RT_RING calibrated samples (gyroscope with the stored bias) */
     float ring_acc[IMUCAL_RT_RING][3];
     float ring_gyro[IMUCAL_RT_RING][3];
-    uint32_t n;                  /* samples seen */
+    uint32_t n;                  /* samples seen, modulo 2^32 (a sample's number) */
+    uint32_t pos;                /* the ring's slot of sample n - 1 */
+    int32_t filled;              /* samples in the window so far, up to window */
+    int32_t since_exact;         /* samples since the window was last computed afresh */
     float win_mean[3], win_m2[3];
     /* the moment in progress */
     int32_t in_run;
@@ -204,6 +207,9 @@ int imucal_rt_init(imucal_rt_state *st, float rate_hz)
     sigma = NOISE_DENSITY * sqrtf(rate_hz);
     st->threshold = K_INUSE * 3.0f * sigma * sigma * sigma * sigma;
     st->n = 0;
+    st->pos = IMUCAL_RT_RING - 1;
+    st->filled = 0;
+    st->since_exact = st->window - 1;  /* the first full window: afresh */
     st->in_run = 0;
     st->still_s = 0.0f;
     st->moments = 0;
@@ -217,14 +223,22 @@ int imucal_rt_init(imucal_rt_state *st, float rate_hz)
     return 0;
 }
 
+/* The ring's slot of sample k, one of the last IMUCAL_RT_RING: by its age, so sample numbers
+ * may wrap past 2^32 (49 days at 1 kHz) without a jump. */
+static uint32_t slot(const imucal_rt_state *st, uint32_t k)
+{
+    const uint32_t age = (st->n - 1u) - k;
+    return (st->pos + IMUCAL_RT_RING - age) % IMUCAL_RT_RING;
+}
+
 static float *ring_acc(imucal_rt_state *st, uint32_t k)
 {
-    return st->ring_acc[k % IMUCAL_RT_RING];
+    return st->ring_acc[slot(st, k)];
 }
 
 static float *ring_gyro(imucal_rt_state *st, uint32_t k)
 {
-    return st->ring_gyro[k % IMUCAL_RT_RING];
+    return st->ring_gyro[slot(st, k)];
 }
 
 /* Each axis' mean and sum of squared deviations over the window ending at sample k, afresh. */
@@ -297,21 +311,22 @@ static int run_end(imucal_rt_state *st, uint32_t b)
     const uint32_t g0 = a + (uint32_t)(e / 2), g1 = b - (uint32_t)e + (uint32_t)(e / 2);
     float acc[3], rc[3], m0[3], m1[3], v0[3], v1[3], gm[3], gv[3], u0[3], u1[3], phi[3];
     float n0, n1, span, ng, norm;
+    const int32_t len = (int32_t)(b - a);  /* < 0: a run shorter than a window */
     uint32_t k, n;
     int i;
     imucal_rt_moment *mo = &st->last;
     st->in_run = 0;
-    if (b <= a || b - a < (uint32_t)st->min_len || (b - a) / 3 < (uint32_t)e) {
+    if (len < st->min_len || len / 3 < e) {
         return 0;
     }
-    n = b - a;
+    n = (uint32_t)len;
     for (i = 0; i < 3; ++i) {
         float s = st->acc_sum[i], r = st->rc_sum[i], gs = st->gy_sum[i], gq = st->gy_sq[i];
-        for (k = b; k <= now; ++k) {
+        for (k = b; k != now + 1u; ++k) {
             s -= ring_acc(st, k)[i] - st->acc_shift[i];
             r -= ring_gyro(st, k)[i];
         }
-        for (k = g1; k <= now; ++k) {
+        for (k = g1; k != now + 1u; ++k) {
             const float d = ring_gyro(st, k)[i] - st->gy_shift[i];
             gs -= d;
             gq -= d * d;
@@ -325,10 +340,10 @@ static int run_end(imucal_rt_state *st, uint32_t b)
         v0[i] = (st->e0_sq[i] - st->e0_sum[i] * st->e0_sum[i] / (float)e) / (float)(e - 1);
         /* the last edge, [b - e, b): two passes over the ring */
         m1[i] = 0.0f;
-        for (k = b - (uint32_t)e; k < b; ++k) m1[i] += ring_acc(st, k)[i];
+        for (k = b - (uint32_t)e; k != b; ++k) m1[i] += ring_acc(st, k)[i];
         m1[i] /= (float)e;
         v1[i] = 0.0f;
-        for (k = b - (uint32_t)e; k < b; ++k) {
+        for (k = b - (uint32_t)e; k != b; ++k) {
             const float d = ring_acc(st, k)[i] - m1[i];
             v1[i] += d * d;
         }
@@ -379,16 +394,24 @@ int imucal_rt_step(imucal_rt_state *st, const float acc_raw[3], const float gyro
 {
     const uint32_t k = st->n;
     const int32_t w = st->window;
-    float *x = ring_acc(st, k), *g = ring_gyro(st, k);
-    int i, ended = 0;
+    float *x, *g;
+    int i, ended = 0, first = 0;
+    st->n = k + 1u;
+    st->pos = (st->pos + 1u) % IMUCAL_RT_RING;
+    x = ring_acc(st, k);
+    g = ring_gyro(st, k);
     apply3(ACC_A, ACC_B, acc_raw, acc_out);
     apply3(GYRO_A, st->gyro_b, gyro_raw, gyro_out);
     apply3(GYRO_A, GYRO_B0, gyro_raw, g);  /* the detector's rates: the stored model's */
     for (i = 0; i < 3; ++i) x[i] = acc_out[i];
-    st->n = k + 1;
     if (st->in_run) run_add(st, k);
-    if (k + 1 < (uint32_t)w) return 0;
-    if ((k + 1) % (uint32_t)w == 0) {
+    if (st->filled < w) {
+        st->filled += 1;
+        if (st->filled < w) return 0;
+        first = 1;
+    }
+    if (++st->since_exact >= w) {  /* afresh once a window (the first one too) */
+        st->since_exact = 0;
         window_exact(st, k);
     } else {  /* slide: sample k in, k - w out */
         const float *o = ring_acc(st, k - (uint32_t)w);
@@ -410,9 +433,10 @@ int imucal_rt_step(imucal_rt_state *st, const float acc_raw[3], const float gyro
             if (!st->in_run) {  /* the moment starts half a window after the centre: at k */
                 /* the first window: the Python's mirrored windows before it taken as still
                  * too, so a recording that starts still starts its moment at half */
-                uint32_t a = k + 1 == (uint32_t)w ? (uint32_t)st->half : k, j;
+                const uint32_t a = first ? k - (uint32_t)st->half : k;
+                uint32_t j;
                 run_begin(st, a);
-                for (j = a; j <= k; ++j) run_add(st, j);
+                for (j = a; j != k + 1u; ++j) run_add(st, j);
             }
         } else if (st->in_run) {  /* ends half a window before this centre */
             ended = run_end(st, k + 1 - 2u * (uint32_t)st->half - 1u);
@@ -477,7 +501,7 @@ def state_bytes(max_rate_hz: int) -> int:
     theirs (every member is 4 bytes): the tests check it against the compiler's."""
     ring = max_rate_hz + 8
     fixed = (1 + 4 + 1 + 3  # rate_hz; window, half, edge, min_len; threshold; gyro_b
-             + 1 + 6  # n; win_mean, win_m2
+             + 4 + 6  # n, pos, filled, since_exact; win_mean, win_m2
              + 2 + 6 + 6 + 3 + 9  # in_run, start; acc shift/sum; e0; rc; gy
              + 7 + 1  # pool_w, pool_s, still_s; moments
              + 3 + 9)  # last: start, end, accepted; acc_mean, rate, rate_se
@@ -485,10 +509,11 @@ def state_bytes(max_rate_hz: int) -> int:
 
 
 # A host program around the runtime, compiled by the tests and the benchmark (not written by
-# the export): ``driver RATE IN OUT [REPEAT]`` reads IN, float32 rows (acc_raw[3], gyro_raw[3]),
-# writes OUT, float32 rows (acc[3], gyro[3], gyro_b[3]) of the first pass, prints each moment
-# ("moment start end accepted r_x r_y r_z se_x se_y se_z"), the final bias, sizeof the state and
-# the nanoseconds per sample over REPEAT passes (each from imucal_rt_init).
+# the export): ``driver RATE IN OUT [REPEAT [FIRST]]`` reads IN, float32 rows (acc_raw[3],
+# gyro_raw[3]); writes OUT, float32 rows (acc[3], gyro[3], gyro_b[3]) of the first pass;
+# prints each moment ("moment start end accepted r_x r_y r_z se_x se_y se_z"), the final bias,
+# sizeof the state and the nanoseconds per sample over REPEAT passes (each from
+# imucal_rt_init). FIRST numbers the samples from there (modulo 2^32: a count that wraps).
 DRIVER_C = """\
 #define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
@@ -512,6 +537,7 @@ int main(int argc, char **argv)
     float *in, *out;
     long n, i;
     int r, repeat = argc > 4 ? atoi(argv[4]) : 1;
+    unsigned long first = argc > 5 ? strtoul(argv[5], NULL, 10) : 0;
     struct timespec t0, t1;
     double ns;
     if (argc < 4) return 2;
@@ -527,6 +553,7 @@ int main(int argc, char **argv)
     clock_gettime(CLOCK_MONOTONIC, &t0);
     for (r = 0; r < repeat; ++r) {
         if (imucal_rt_init(&st, (float)atof(argv[1])) != 0) return 5;
+        st.n = (uint32_t)first;  /* the samples' numbers from there, modulo 2^32 */
         for (i = 0; i < n; ++i) {
             float *o = out + 9 * i;
             if (imucal_rt_step(&st, in + 6 * i, in + 6 * i + 3, o, o + 3) && r == 0) report(&st);
