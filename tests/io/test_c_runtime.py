@@ -4,6 +4,7 @@ against the Python's apply, still moments (method.md §10) and refresh, and agai
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -142,6 +143,20 @@ def test_a_sample_count_that_wraps_past_2_32_changes_nothing(case):
     np.testing.assert_array_equal(got, c["moments"][:, :2].astype(np.int64))
     np.testing.assert_array_equal(wrapped["bias"], c["bias"])
     np.testing.assert_array_equal(wrapped["out"], c["out"])
+
+
+def test_a_nan_in_a_moment_refuses_it_and_spoils_nothing_else(case):
+    session, truth, c, _, d = case
+    if truth.activity != "walk":
+        pytest.skip("once is enough")
+    a, b = c["moments"][2, :2].astype(np.int64)
+    gyro = session.gyro.copy()
+    gyro[(a + b) // 2, 1] = np.nan
+    bad = run(d / "driver", dataclasses.replace(session, gyro=gyro), d)
+    np.testing.assert_array_equal(bad["moments"][:, :2], c["moments"][:, :2])
+    assert list(bad["moments"][:, 2]) == [1, 1, 0] + [1] * (len(c["moments"]) - 3)
+    assert np.all(np.isfinite(bad["bias"]))
+    assert np.degrees(np.abs(bad["bias"] - truth.gyro.b)).max() < 0.05
 
 
 def test_a_rate_beyond_the_state_is_refused(case):

@@ -108,7 +108,7 @@ _H = """\
 typedef struct {
     uint32_t start;
     uint32_t end;
-    int32_t accepted;   /* 1: pooled into the gyroscope's bias; 0: refused (norm or rate) */
+    int32_t accepted;   /* 1: pooled into the gyroscope's bias; 0: refused (norm, rate, NaN) */
     float acc_mean[3];  /* calibrated accelerometer mean */
     float rate[3];      /* M10's rate at rest left by the stored model, rad/s */
     float rate_se[3];   /* its standard error, rad/s */
@@ -335,9 +335,10 @@ static int run_end(imucal_rt_state *st, uint32_t b)
         rc[i] = r / (float)n;
         ng = (float)(g1 - g0);
         gm[i] = st->gy_shift[i] + gs / ng;
-        gv[i] = (gq - gs * gs / ng) / (ng - 1.0f);
+        gv[i] = fmaxf((gq - gs * gs / ng) / (ng - 1.0f), 0.0f);  /* rounding: not below 0 */
         m0[i] = st->acc_shift[i] + st->e0_sum[i] / (float)e;
-        v0[i] = (st->e0_sq[i] - st->e0_sum[i] * st->e0_sum[i] / (float)e) / (float)(e - 1);
+        v0[i] = fmaxf((st->e0_sq[i] - st->e0_sum[i] * st->e0_sum[i] / (float)e)
+                      / (float)(e - 1), 0.0f);
         /* the last edge, [b - e, b): two passes over the ring */
         m1[i] = 0.0f;
         for (k = b - (uint32_t)e; k != b; ++k) m1[i] += ring_acc(st, k)[i];
@@ -370,6 +371,9 @@ static int run_end(imucal_rt_state *st, uint32_t b)
         float se = sqrtf(gv[i] / (float)(g1 - g0) + var_u / (span * span));
         mo->rate[i] = gm[i] - phi[i] / span;
         mo->rate_se[i] = se;
+    }
+    for (i = 0; i < 3; ++i) {  /* a non-finite sample (a glitch, a NaN) spoils the moment */
+        if (!isfinite(mo->rate[i]) || !isfinite(mo->rate_se[i])) mo->accepted = 0;
     }
     if (mo->accepted) {
         float post[3];
