@@ -23,7 +23,8 @@ from imucal.cli.options import (
 from imucal.cli.outputs import Progress, check_outputs, fmt, viewer_available
 from imucal.errors import ImucalError
 
-FORMAT_NAMES = ("imu_tk", "fusion", "kalibr", "px4", "ardupilot", "c", "json", "yaml")
+FORMAT_NAMES = ("imu_tk", "fusion", "kalibr", "px4", "ardupilot", "c", "c_runtime", "json",
+                "yaml")
 
 
 def _format(value: str) -> str:
@@ -44,7 +45,8 @@ def export_cmd(
     out: Annotated[Path | None, typer.Option(
         "--out", "-o", metavar="FILE", show_default=False,
         help="File to write [default: beside CALIB.json, named after it and the format; "
-             "imu_tk writes FILE_acc.calib and FILE_gyro.calib].")] = None,
+             "imu_tk writes FILE_acc.calib and FILE_gyro.calib; c_runtime takes a directory and "
+             "writes imucal_runtime.h and imucal_runtime.c in it].")] = None,
     segment: Annotated[int | None, typer.Option(
         "--segment", metavar="N", callback=at_least(1), show_default=False,
         help="Which segment (1-based) a one-model format takes [required when there are "
@@ -59,7 +61,8 @@ def export_cmd(
     from imucal.io.exports import default_output, export
 
     target = out if out is not None else default_output(calibration, to)
-    check_outputs([target], [calibration, noise])
+    if to != "c_runtime":  # c_runtime's --out is a directory, its files checked as written
+        check_outputs([target], [calibration, noise])
     result = export(calibration, to, target, segment=segment, noise=noise)
     lines = [f"export          {to}: {calibration}"]
     verdict = _verdict_of(calibration)

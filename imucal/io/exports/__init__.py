@@ -3,7 +3,9 @@
 One module per family: :mod:`imu_tk` (.calib triads), :mod:`fusion` (x-io Fusion C header),
 :mod:`kalibr` (imu.yaml noise block and scale-misalignment intrinsics), :mod:`autopilot` (PX4
 and ArduPilot parameter files), :mod:`c_header` (a dependency-free C implementation of the
-whole model), :mod:`plain` (JSON/YAML with units). Each exporter takes the calibration read
+whole model), :mod:`c_runtime` (a C99 runtime for the device: the
+calibration, the still detector and the gyroscope bias's refresh), :mod:`plain` (JSON/YAML
+with units). Each exporter takes the calibration read
 back (:func:`read_export_input`), an output path and an optional segment, and returns the
 files to write and what the conversion kept or lost.
 """
@@ -26,6 +28,7 @@ class Format:
     function: str
     default_name: str  # "{stem}" is the calibration file's stem
     description: str
+    directory: bool = False  # the output is a directory the files are written into
 
 
 FORMATS: dict[str, Format] = {
@@ -39,6 +42,9 @@ FORMATS: dict[str, Format] = {
                         "ArduPilot parameter file"),
     "c": Format("c_header", "export", "{stem}_imucal.h",
                 "dependency-free C header applying the whole model"),
+    "c_runtime": Format("c_runtime", "export", "{stem}_c_runtime",
+                        "C99 runtime: calibration, still detector and gyroscope-bias refresh "
+                        "(a directory: imucal_runtime.h, imucal_runtime.c)", directory=True),
     "json": Format("plain", "to_json", "{stem}_export.json", "plain JSON with units"),
     "yaml": Format("plain", "to_yaml", "{stem}_export.yaml", "plain YAML with units"),
 }
@@ -65,6 +71,11 @@ def export(calibration: str | Path, fmt: str, out: str | Path | None = None, *,
     inp = read_export_input(calibration, noise)
     target = Path(out) if out is not None else default_output(calibration, fmt)
     result = fn(inp, target, segment)
+    if FORMATS[fmt].directory:
+        if target.exists() and not target.is_dir():
+            raise ImucalError("expected a directory for the files, and a file of that name "
+                              "exists", source=str(target), field="--out")
+        target.mkdir(parents=True, exist_ok=True)
     inputs = (calibration,) + ((Path(noise),) if noise is not None else ())
     for path, _ in result.files:
         check_output_path(path, inputs)
