@@ -306,7 +306,15 @@ def cluster_client(scheduler: str | None, workers: int) -> Iterator[tuple[Any, s
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        with Client(scheduler, timeout="20s") as client:
+        from imucal.fleet.scheduler import CLIENT_TIMEOUT, probe
+
+        probe(scheduler)  # one prompt line for a closed port or another kind of server
+        try:
+            client = Client(scheduler, timeout=CLIENT_TIMEOUT)
+        except (OSError, MemoryError, ValueError) as e:  # a Dask server that is no scheduler
+            raise ImucalError(f"{scheduler}: a Dask server that does not act as a scheduler "
+                              f"({e.__class__.__name__}: {e})", field="--scheduler") from None
+        with client:
             yield client, scheduler
         return
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -342,6 +350,10 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
     and one per session (:func:`local_workers`; the cap is said in ``cluster``).
     ``store``: add every calibrated session to that calibration store, as its result comes in
     (the sessions a rerun skips too: the store keeps one copy of each)."""
+    if scheduler is not None:  # before any file is read: a wrong address is said at once
+        from imucal.fleet.scheduler import probe
+
+        probe(scheduler)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs, rows = plan(files, out_dir, device_from=device_from, load_kw=load_kw,
                       settings=settings, spec=spec)
