@@ -7,6 +7,7 @@ import contextlib
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import imucal.fleet.batch as batch
@@ -239,3 +240,69 @@ def test_a_scheduler_address_as_dask_reads_it():
     assert split_address("10.0.0.5:8786") == ("tcp", "10.0.0.5", 8786)  # Dask's default
     assert split_address("tcp://[::1]:8786") == ("tcp", "::1", 8786)
     assert split_address("tls://sched.lan:8786") == ("tls", "sched.lan", 8786)
+
+
+# --- fleet report: an outlier among three or four units (issue 27) ----------------------------
+
+
+def _fleet_rows(b_x: list[float]) -> list[dict]:
+    """One calibration per unit, the accelerometer's b_x as given (g), the rest alike."""
+    from datetime import datetime, timezone
+
+    from imucal.fleet.drift import PARAMS
+
+    when = datetime(2024, 4, 20, tzinfo=timezone.utc)
+    rows = []
+    for i, b in enumerate(b_x):
+        row = {p.column: (1.0 if p.group == "scale" else 0.0) + 1e-4 * ((i * 7 + k) % 5)
+               for k, p in enumerate(PARAMS)}  # spread, nothing out: only b_x stands out
+        rows.append(row | {"device": f"u{i}", "calibrated_at": when, "seq": 1,
+                           "path": f"u{i}/c.json", "acc_unit_raw": "g",
+                           "gyro_unit_raw": "rad/s", "acc_b_x": b})
+    return rows
+
+
+@pytest.mark.parametrize("b_x, flagged", [
+    ([0.005, 0.005, 0.120], "u2"),  # the others agree: MAD = 0, |z| was at most 2.4
+    ([0.005, 0.005, 0.005, 0.120], "u3"),  # ... at most 3.2
+    ([0.120, 0.0050, 0.0052], "u0"),  # Q = 0.998
+    ([0.005, 0.006, 0.004, -0.110], "u3"),  # Q = 0.991
+])
+def test_a_clear_outlier_among_three_or_four_units_is_flagged(b_x, flagged):
+    from imucal.fleet.drift import fleet_lines, fleet_report
+
+    rep = fleet_report(_fleet_rows(b_x))
+    assert [(o.device, o.spread.param.label) for o in rep.outliers] == [
+        (flagged, "accelerometer b_x")]
+    text = "\n".join(fleet_lines(rep))
+    assert f"outliers: 1:\n  {flagged}: accelerometer b_x = " in text
+    assert "Dixon's Q = " in text
+    n = len(b_x)
+    assert f"note: {n} units: a robust z is degenerate with so few; Dixon's Q judged" in text
+
+
+@pytest.mark.parametrize("b_x", [[0.003, 0.008, 0.120],  # Q = 0.957: with three, not clear
+                                 [0.005, 0.020, 0.035, 0.050],  # evenly spread
+                                 [0.005, 0.005, 0.005]])  # all equal
+def test_three_or_four_units_without_a_clear_outlier_flag_none(b_x):
+    from imucal.fleet.drift import dixon_q, fleet_report
+
+    rep = fleet_report(_fleet_rows(b_x))
+    assert rep.outliers == []
+    q, _ = dixon_q(np.array(b_x))
+    assert q is None if len(set(b_x)) == 1 else q < 0.96
+
+
+def test_dixon_q_is_the_gap_over_the_range():
+    from imucal.fleet.drift import dixon_q
+
+    assert dixon_q(np.array([1.0, 2.0, 11.0])) == (pytest.approx(0.9), 2)
+    assert dixon_q(np.array([-9.0, 0.0, 1.0, 1.0])) == (pytest.approx(0.9), 0)
+
+
+def test_five_units_are_still_judged_by_robust_z():
+    from imucal.fleet.drift import fleet_report
+
+    rep = fleet_report(_fleet_rows([0.005, 0.006, 0.004, 0.0055, 0.120]))
+    [o] = rep.outliers
+    assert o.device == "u4" and o.spread.q is None and o.z > 3.5
