@@ -317,10 +317,44 @@ def cluster_client(scheduler: str | None, workers: int) -> Iterator[tuple[Any, s
         with client:
             yield client, scheduler
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      host="127.0.0.1", dashboard_address=None, silence_logs=40,
-                      env=SINGLE_THREAD_ENV) as cluster, Client(cluster) as client:
+    with contextlib.ExitStack() as stack:
+        with _interrupts_are_the_drivers():
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=None, silence_logs=40, env=SINGLE_THREAD_ENV))
+            client = stack.enter_context(Client(cluster))
         yield client, f"LocalCluster of {workers} workers on 127.0.0.1"
+
+
+@contextlib.contextmanager
+def _interrupts_are_the_drivers() -> Iterator[None]:
+    """Start a LocalCluster so that Ctrl-C ends the batch in one line (issue 27: tracebacks).
+
+    A terminal's Ctrl-C reaches every process of the foreground group, the workers too, which
+    died printing theirs. The worker processes are started with SIGINT blocked (a blocked
+    signal stays blocked across fork and exec, and Dask starts them from its event-loop thread,
+    which inherits this thread's mask); Ctrl-C is the driver's alone, whose closing the
+    cluster ends them. And the start itself is not cut short (a cluster half started fails
+    its exit-time close with a traceback): an interrupt meanwhile takes effect once it is up,
+    and the caller's exit then closes it (:func:`imucal.io.atomic.held_back`)."""
+    import signal
+
+    from imucal.io.atomic import held_back
+
+    with held_back():
+        blocked = None
+        if hasattr(signal, "pthread_sigmask"):
+            # multiprocessing's resource tracker, started on first use, unblocks SIGINT in
+            # the thread that starts it (Dask's event loop): started here first, it is not.
+            from multiprocessing import resource_tracker
+
+            resource_tracker.ensure_running()
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            yield
+        finally:
+            if blocked is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def local_workers(asked: int | None, sessions: int) -> tuple[int, str]:
