@@ -319,11 +319,19 @@ def cluster_client(scheduler: str | None, workers: int) -> Iterator[tuple[Any, s
         return
     with contextlib.ExitStack() as stack:
         with _interrupts_are_the_drivers():
+            # Dask's own logs only when critical: a session's failure is its row's, and an
+            # interrupted batch's workers log the closed scheduler at ERROR with a traceback.
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address=None, silence_logs=40, env=SINGLE_THREAD_ENV))
+                dashboard_address=None, silence_logs=50, env=SINGLE_THREAD_ENV))
             client = stack.enter_context(Client(cluster))
-        yield client, f"LocalCluster of {workers} workers on 127.0.0.1"
+        try:
+            yield client, f"LocalCluster of {workers} workers on 127.0.0.1"
+        finally:  # nor its close: an interrupt meanwhile takes effect once it is down
+            from imucal.io.atomic import held_back
+
+            with held_back():
+                stack.close()
 
 
 @contextlib.contextmanager
@@ -335,8 +343,9 @@ def _interrupts_are_the_drivers() -> Iterator[None]:
     signal stays blocked across fork and exec, and Dask starts them from its event-loop thread,
     which inherits this thread's mask); Ctrl-C is the driver's alone, whose closing the
     cluster ends them. And the start itself is not cut short (a cluster half started fails
-    its exit-time close with a traceback): an interrupt meanwhile takes effect once it is up,
-    and the caller's exit then closes it (:func:`imucal.io.atomic.held_back`)."""
+    its exit-time close with a traceback, and waits 10 s on it): an interrupt meanwhile takes
+    effect once it is up, and the caller's exit then closes it, the close held back alike
+    (:func:`imucal.io.atomic.held_back`)."""
     import signal
 
     from imucal.io.atomic import held_back
