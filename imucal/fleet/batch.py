@@ -339,8 +339,9 @@ def _interrupts_are_the_drivers() -> Iterator[None]:
     """Start a LocalCluster so that Ctrl-C ends the batch in one line (issue 27: tracebacks).
 
     A terminal's Ctrl-C reaches every process of the foreground group, the workers too, which
-    died printing theirs. The worker processes are started with SIGINT blocked (a blocked
-    signal stays blocked across fork and exec, and Dask starts them from its event-loop thread,
+    died printing theirs. The worker processes are started with SIGINT (and SIGHUP) blocked (a
+    blocked signal stays blocked across fork and exec, and Dask starts them from its event-loop
+    thread,
     which inherits this thread's mask); Ctrl-C is the driver's alone, whose closing the
     cluster ends them. And the start itself is not cut short (a cluster half started fails
     its exit-time close with a traceback, and waits 10 s on it): an interrupt meanwhile takes
@@ -353,12 +354,16 @@ def _interrupts_are_the_drivers() -> Iterator[None]:
     with held_back():
         blocked = None
         if hasattr(signal, "pthread_sigmask"):
-            # multiprocessing's resource tracker, started on first use, unblocks SIGINT in
-            # the thread that starts it (Dask's event loop): started here first, it is not.
+            # SIGHUP too: a closed terminal sends it to the group, and it killed multiprocessing's
+            # resource tracker (which ignores only SIGINT and SIGTERM) with tracebacks. The
+            # tracker, started on first use, unblocks SIGINT in the thread that starts it
+            # (Dask's event loop): started here first, under SIGHUP's block; then SIGINT's.
             from multiprocessing import resource_tracker
 
+            hups = {signal.SIGHUP} if hasattr(signal, "SIGHUP") else set()
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, hups)
             resource_tracker.ensure_running()
-            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, *hups})
         try:
             yield
         finally:

@@ -67,8 +67,8 @@ def _a_worker_of(pid: int) -> bool:
     return False
 
 
-def _interrupt(proc: subprocess.Popen) -> tuple[int, str]:
-    os.killpg(proc.pid, signal.SIGINT)  # the whole group, as Ctrl-C at a terminal
+def _interrupt(proc: subprocess.Popen, sig: int = signal.SIGINT) -> tuple[int, str]:
+    os.killpg(proc.pid, sig)  # the whole group, as Ctrl-C (or a closed terminal) does
     try:
         _, err = proc.communicate(timeout=60)
     finally:
@@ -89,11 +89,12 @@ def test_ctrl_c_while_the_workers_start(sessions, tmp_path):
     assert err.count("\n") == 1, err
 
 
-def test_ctrl_c_while_sessions_run(sessions, tmp_path):
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGHUP"])  # SIGHUP killed the resource tracker
+def test_ctrl_c_while_sessions_run(sessions, tmp_path, sig):
     proc = _start(sessions, tmp_path / "out")
     line = proc.stderr.readline()  # -v: a line after each session, the first once one is done
     assert line.startswith("done "), (line, proc.communicate())
-    rc, err = _interrupt(proc)
+    rc, err = _interrupt(proc, getattr(signal, sig))
     assert "Traceback" not in err, err
     assert rc == 130 and err.endswith("imucal: interrupted\n"), (rc, err)
     assert [ln for ln in err.splitlines() if not ln.startswith("done ")] == [
