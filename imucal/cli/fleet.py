@@ -70,6 +70,20 @@ def _progress_line(counts, tty: bool) -> None:
 _DATA_SUFFIXES = {".mat", ".csv", ".tsv", ".txt", ".dat", ".log", ".parquet", ".h5", ".hdf5"}
 
 
+def _scheduler_address(value: str | None) -> str | None:
+    """--scheduler as Dask reads an address, or a usage error saying what is expected (was
+    an internal error, exit 3, for 'notanaddress')."""
+    if value is None:
+        return None
+    from imucal.fleet.scheduler import split_address
+
+    try:
+        split_address(value)
+    except ValueError as e:
+        raise typer.BadParameter(str(e)) from None
+    return value
+
+
 @app.command()
 @shared_options(INPUT_OPTIONS, SETTING_OPTIONS)
 def batch(
@@ -82,6 +96,7 @@ def batch(
              "summary.parquet go.")],
     scheduler: Annotated[str | None, typer.Option(
         "--scheduler", metavar="tcp://HOST:PORT", show_default=False,
+        callback=_scheduler_address,
         help="An existing Dask scheduler, used as it is [default: a LocalCluster on "
              "127.0.0.1].")] = None,
     workers: Annotated[int | None, typer.Option(
@@ -342,7 +357,7 @@ def fleet_report(
     rrd: RrdOpt = None, at: AtOpt = None,
 ) -> int:
     """Every parameter across the fleet (the newest calibration of each device), with the
-    units whose robust z-score exceeds 3.5 flagged."""
+    units whose robust z-score exceeds 3.5 flagged (with 3 or 4 units, Dixon's Q at 99 %)."""
     from imucal.fleet import store as st
     from imucal.fleet.drift import fleet_lines
     from imucal.fleet.drift import fleet_report as report_of

@@ -7,7 +7,7 @@ rerun only by ``--rrd`` and ``view``.
 Exit codes: 0 success; 1 a problem with the user's input, files or settings (one line on
 stderr, ``imucal: error: ...``); 2 a usage error (unknown option, bad option value); 3 an
 internal error (a bug in imucal, one line; ``IMUCAL_DEBUG=1`` shows the traceback); 130
-interrupted (Ctrl-C).
+interrupted (Ctrl-C, or a polite kill: SIGTERM, SIGHUP).
 """
 
 
@@ -55,6 +55,15 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+def _polite_kills() -> list[int]:
+    """The signals that unwind like Ctrl-C: SIGTERM, and SIGHUP (the terminal closed, an ssh
+    session dropped) where the platform has it; by default both would end the process on the
+    spot, leaving its temporaries and lock files beside the outputs (issue 27)."""
+    import signal
+
+    return [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+
+
 def _unreadable_is_the_readers(cli) -> None:
     """click refuses an unreadable path argument as a usage error (exit 2); a file without
     read permission is the user's data, not their usage: the reader reports it, exit 1 with
@@ -77,14 +86,15 @@ def main(argv: list[str] | None = None, *, command: str | None = None,
     import signal
     import warnings
 
-    old_term = signal.getsignal(signal.SIGTERM)
+    old_handlers = {sig: signal.getsignal(sig) for sig in _polite_kills()}
     old_show = warnings.showwarning
     try:
         return _main(argv, command=command, prog=prog)
     finally:
         warnings.showwarning = old_show
-        with contextlib.suppress(ValueError, TypeError):  # not the main thread: never set
-            signal.signal(signal.SIGTERM, old_term)
+        for sig, handler in old_handlers.items():
+            with contextlib.suppress(ValueError, TypeError):  # not the main thread: never set
+                signal.signal(sig, handler)
 
 
 def _setup_process() -> None:
@@ -94,12 +104,13 @@ def _setup_process() -> None:
     # a user's own setting wins.
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
-    # A polite kill (SIGTERM) unwinds like Ctrl-C, so a write in progress removes its
-    # temporary file instead of leaving it beside the output.
+    # A polite kill (SIGTERM, SIGHUP) unwinds like Ctrl-C, so a write in progress removes its
+    # temporary and lock files instead of leaving them beside the output.
     import signal
 
-    with contextlib.suppress(ValueError):  # not the main thread (tests): keep the default
-        signal.signal(signal.SIGTERM, _on_sigterm)
+    for sig in _polite_kills():
+        with contextlib.suppress(ValueError):  # not the main thread (tests): keep the default
+            signal.signal(sig, _on_sigterm)
     # A terminal or PYTHONIOENCODING that cannot show a character (the summary's file names,
     # a unit) gets an escape for it, not a UnicodeEncodeError after the files were written.
     for stream in (sys.stdout, sys.stderr):

@@ -306,13 +306,69 @@ def cluster_client(scheduler: str | None, workers: int) -> Iterator[tuple[Any, s
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        with Client(scheduler, timeout="20s") as client:
+        from imucal.fleet.scheduler import CLIENT_TIMEOUT, probe
+
+        probe(scheduler)  # one prompt line for a closed port or another kind of server
+        try:
+            client = Client(scheduler, timeout=CLIENT_TIMEOUT)
+        except (OSError, MemoryError, ValueError) as e:  # a Dask server that is no scheduler
+            raise ImucalError(f"{scheduler}: a Dask server that does not act as a scheduler "
+                              f"({e.__class__.__name__}: {e})", field="--scheduler") from None
+        with client:
             yield client, scheduler
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      host="127.0.0.1", dashboard_address=None, silence_logs=40,
-                      env=SINGLE_THREAD_ENV) as cluster, Client(cluster) as client:
-        yield client, f"LocalCluster of {workers} workers on 127.0.0.1"
+    with contextlib.ExitStack() as stack:
+        with _interrupts_are_the_drivers():
+            # Dask's own logs only when critical: a session's failure is its row's, and an
+            # interrupted batch's workers log the closed scheduler at ERROR with a traceback.
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=None, silence_logs=50, env=SINGLE_THREAD_ENV))
+            client = stack.enter_context(Client(cluster))
+        try:
+            yield client, f"LocalCluster of {workers} workers on 127.0.0.1"
+        finally:  # nor its close: an interrupt meanwhile takes effect once it is down
+            from imucal.io.atomic import held_back
+
+            with held_back():
+                stack.close()
+
+
+@contextlib.contextmanager
+def _interrupts_are_the_drivers() -> Iterator[None]:
+    """Start a LocalCluster so that Ctrl-C ends the batch in one line (issue 27: tracebacks).
+
+    A terminal's Ctrl-C reaches every process of the foreground group, the workers too, which
+    died printing theirs. The worker processes are started with SIGINT (and SIGHUP) blocked (a
+    blocked signal stays blocked across fork and exec, and Dask starts them from its event-loop
+    thread,
+    which inherits this thread's mask); Ctrl-C is the driver's alone, whose closing the
+    cluster ends them. And the start itself is not cut short (a cluster half started fails
+    its exit-time close with a traceback, and waits 10 s on it): an interrupt meanwhile takes
+    effect once it is up, and the caller's exit then closes it, the close held back alike
+    (:func:`imucal.io.atomic.held_back`)."""
+    import signal
+
+    from imucal.io.atomic import held_back
+
+    with held_back():
+        blocked = None
+        if hasattr(signal, "pthread_sigmask"):
+            # SIGHUP too: a closed terminal sends it to the group, and it killed multiprocessing's
+            # resource tracker (which ignores only SIGINT and SIGTERM) with tracebacks. The
+            # tracker, started on first use, unblocks SIGINT in the thread that starts it
+            # (Dask's event loop): started here first, under SIGHUP's block; then SIGINT's.
+            from multiprocessing import resource_tracker
+
+            hups = {signal.SIGHUP} if hasattr(signal, "SIGHUP") else set()
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, hups)
+            resource_tracker.ensure_running()
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, *hups})
+        try:
+            yield
+        finally:
+            if blocked is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def local_workers(asked: int | None, sessions: int) -> tuple[int, str]:
@@ -342,6 +398,10 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
     and one per session (:func:`local_workers`; the cap is said in ``cluster``).
     ``store``: add every calibrated session to that calibration store, as its result comes in
     (the sessions a rerun skips too: the store keeps one copy of each)."""
+    if scheduler is not None:  # before any file is read: a wrong address is said at once
+        from imucal.fleet.scheduler import probe
+
+        probe(scheduler)
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs, rows = plan(files, out_dir, device_from=device_from, load_kw=load_kw,
                       settings=settings, spec=spec)

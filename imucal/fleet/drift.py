@@ -13,6 +13,18 @@ outliers they are meant to find, where a mean and standard deviation would be (o
 mg among ten at 5 mg inflates the standard deviation until it hides itself). When more than
 half the fleet has the same value (MAD = 0) the mean absolute deviation stands in
 (``z = (x - median) / (1.2533 mean|x - median|)``), and the report says so.
+
+With 3 or 4 units the robust z is degenerate: the MAD is one gap between two units (or the mean
+of two), and when the others agree (MAD = 0) the mean absolute deviation holds the outlier's own
+distance, which bounds its |z| by n / 1.2533 (2.4 for three units, 3.2 for four: never over
+3.5), so a unit at 120 among others at 5 was never flagged (issue 27); and when the others do
+differ, |z| > 3.5 is a false alarm for 29 % (three units) and 17 % (four) of parameters spread
+normally (measured by simulation), a rule that says nothing either way. There, Dixon's Q test
+decides (Dean and Dixon 1951, the test made for few values): ``Q = gap / range``, the gap
+between the unit at either end and its nearest neighbour; the farther end's unit is flagged when
+Q exceeds the 99 % critical value of Rorabacher (1991), 0.994 for three units and 0.926 for four
+(a false alarm at 1 % per parameter for normally spread units; measured by simulation: 1.0 %
+and 0.9 %). Fewer than three units are not judged at all. The text says which test judged.
 """
 
 from __future__ import annotations
@@ -32,6 +44,7 @@ MIN_DEVICES = 3  # a median and a MAD of fewer say nothing about what is usual
 _MAD_TO_Z = 0.6745  # the MAD of a standard normal: z = 0.6745 (x - median) / MAD
 _MEANAD_TO_SIGMA = 1.253314  # sqrt(pi / 2): mean absolute deviation -> sigma, normal data
 _DAY = 86400.0
+DIXON_Q99 = {3: 0.994, 4: 0.926}  # Rorabacher (1991), 99 %: the units Dixon's Q judges
 
 
 @dataclass(frozen=True)
@@ -190,10 +203,32 @@ class Spread:
     mad: float
     z: np.ndarray  # robust z of each device
     z_from: str  # "MAD", "mean absolute deviation (MAD = 0)", "all equal"
+    # 3 or 4 units: Dixon's Q of the unit at the farther end (see the module's text)
+    q: float | None = None
+    suspect: int | None = None  # that unit's index
+
+    @property
+    def q_limit(self) -> float | None:
+        return DIXON_Q99.get(len(self.devices)) if self.q is not None else None
 
     @property
     def outliers(self) -> np.ndarray:
+        if self.q is not None:
+            return np.array([self.suspect] if self.q > self.q_limit else [], dtype=int)
         return np.flatnonzero(np.abs(self.z) > Z_LIMIT)
+
+
+def dixon_q(values: np.ndarray) -> tuple[float | None, int | None]:
+    """Dixon's Q of the unit at the farther end of ``values`` (3 or 4 of them) and its index:
+    ``Q = gap to its nearest neighbour / range`` (None, None when all are equal)."""
+    x = np.asarray(values, dtype=float)
+    order = np.argsort(x, kind="stable")
+    ends = x[order]
+    span = float(ends[-1] - ends[0])
+    if not span > 0:
+        return None, None
+    low, high = (ends[1] - ends[0]) / span, (ends[-1] - ends[-2]) / span
+    return (float(high), int(order[-1])) if high >= low else (float(low), int(order[0]))
 
 
 def robust_z(values: np.ndarray) -> tuple[np.ndarray, float, float, str]:
@@ -266,7 +301,8 @@ def fleet_report(rows: list[dict[str, Any]], at: datetime | None = None) -> Flee
                 continue
             values = np.array([picked[d][p.column] for d in devs], dtype=float)
             z, med, mad, how = robust_z(values)
-            spreads.append(Spread(p, unit, devs, values, med, mad, z, how))
+            q, suspect = dixon_q(values) if len(devs) in DIXON_Q99 else (None, None)
+            spreads.append(Spread(p, unit, devs, values, med, mad, z, how, q, suspect))
     return FleetReport(at, list(picked), [r["calibrated_at"] for r in picked.values()],
                        [r["path"] for r in picked.values()], spreads, notes)
 
@@ -277,7 +313,7 @@ def fleet_lines(rep: FleetReport) -> list[str]:
             f"{iso(rep.at)}; robust z = 0.6745 (x - median) / MAD, outlier |z| > {Z_LIMIT:g}"]
     body = []
     for s in rep.spreads:
-        flagged = ", ".join(f"{s.devices[i]} (z = {s.z[i]:+.1f})" for i in s.outliers)
+        flagged = ", ".join(_judged(s, i) for i in s.outliers)
         body.append([s.param.label, s.unit, str(len(s.devices)), _g(s.median, ".5g"),
                      _g(s.mad, ".3g"), _g(float(s.values.min()), ".5g"),
                      _g(float(s.values.max()), ".5g"), _g(float(np.abs(s.z).max()), ".1f"),
@@ -288,9 +324,27 @@ def fleet_lines(rep: FleetReport) -> list[str]:
     lines.append(f"outliers: {len(outliers)}" + (":" if outliers else ""))
     path = dict(zip(rep.devices, rep.paths))
     lines += [f"  {o.device}: {o.spread.param.label} = {o.value:.5g} {o.spread.unit} (fleet "
-              f"median {o.spread.median:.5g}, z = {o.z:+.1f})  {path[o.device]}"
+              f"median {o.spread.median:.5g}, "
+              f"{_figure(o.spread, o.spread.devices.index(o.device))})  {path[o.device]}"
               for o in outliers]
     lines += [f"note: {n}" for n in rep.notes]
+    few = sorted({len(s.devices) for s in rep.spreads if len(s.devices) in DIXON_Q99})
+    if few:
+        lines.append(
+            f"note: {' or '.join(map(str, few))} units: a robust z is degenerate with so few; "
+            "Dixon's Q judged instead (gap to the nearest unit / range), outlier Q > "
+            + ", ".join(f"{DIXON_Q99[n]:g} for {n}" for n in few) + " (99 %)")
     notes_z = sorted({f"{s.param.label}: z from the {s.z_from}" for s in rep.spreads
-                      if s.z_from != "MAD"})
+                      if s.z_from != "MAD" and len(s.devices) not in DIXON_Q99})
     return lines + [f"note: {n}" for n in notes_z]
+
+
+def _judged(s: Spread, i: int) -> str:
+    return f"{s.devices[i]} ({_figure(s, i)})"
+
+
+def _figure(s: Spread, i: int) -> str:
+    """The figure that flagged unit ``i``: Dixon's Q for 3-4 units, else its robust z."""
+    if s.q is not None:
+        return f"Dixon's Q = {s.q:.3f} > {s.q_limit:g}"
+    return f"z = {s.z[i]:+.1f}"

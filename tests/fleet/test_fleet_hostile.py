@@ -7,6 +7,7 @@ import contextlib
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import imucal.fleet.batch as batch
@@ -120,3 +121,188 @@ def test_the_store_never_merges_two_units_of_one_id(tmp_path, calib_doc):
     assert "'IMU 1'" in msg and "'IMU_1'" in msg and msg.startswith(str(other))
     assert len(calibrations(store, "IMU_1")) == 2
     assert add(store, other, "IMU_1b").device == "IMU_1b"  # named apart by the user
+
+
+# --- --scheduler: what is at the address, said at once in one line (issue 27) ----------------
+
+
+def _run_cli(args: list) -> tuple[int, str]:
+    import io
+    import signal
+
+    from imucal.cli.main import main
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        rc = main([str(a) for a in args])
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    return rc, err.getvalue()
+
+
+@contextlib.contextmanager
+def _server(behaviour: str):
+    """A plain TCP server on 127.0.0.1 that is no Dask scheduler: it says nothing and holds
+    the connection, closes it at once, or greets with another protocol's banner (SSH's)."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(4)
+    held: list = []
+
+    def serve() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = srv.accept()
+                if behaviour == "closes":
+                    conn.close()
+                    continue
+                if behaviour == "banner":
+                    conn.sendall(b"SSH-2.0-OpenSSH_9.6\r\n")
+                held.append(conn)
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+    finally:
+        srv.close()
+        for conn in held:
+            conn.close()
+
+
+def _closed_port() -> str:
+    import socket
+
+    with socket.socket() as s:  # bound, never listening: the port is ours and refuses
+        s.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{s.getsockname()[1]}"
+
+
+@pytest.fixture
+def one_session(tmp_path) -> Path:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "s.csv").write_text("t,ax,ay,az\n0,0,0,1\n")  # never read: the
+    return tmp_path / "a" / "s.csv"  # address is checked first
+
+
+@pytest.mark.parametrize("address", ["notanaddress", "tcp://", "tcp://host", "tcp://:8786",
+                                     "tcp://h:port", "tcp://h:70000", "foo://h:1"])
+def test_a_scheduler_that_is_no_address_is_a_usage_error(tmp_path, one_session, address):
+    rc, err = _run_cli(["batch", one_session, "--out-dir", tmp_path / "o", "--scheduler",
+                        address])
+    assert rc == 2, err  # was exit 3, an internal error
+    assert "Invalid value for '--scheduler'" in err and "expected tcp://HOST:PORT" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_closed_port_is_said_at_once(tmp_path, one_session):
+    import time
+
+    address = _closed_port()
+    t0 = time.monotonic()
+    rc, err = _run_cli(["batch", one_session, "--out-dir", tmp_path / "o", "--scheduler",
+                        address])
+    assert time.monotonic() - t0 < 3  # was 23 s, then "OSError"
+    assert rc == 1 and err.count("\n") == 1, err
+    assert err == (f"imucal: error: --scheduler: no Dask scheduler at {address}: connection "
+                   "refused (nothing listens on that port)\n")
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("behaviour, said", [
+    ("silent", "it sent nothing within 0.5 s of the connection"),
+    ("closes", "it closed the connection without a Dask greeting"),
+    ("banner", "its greeting is not Dask's); its first bytes: b'SSH-2.0-OpenSSH_'"),
+])
+def test_a_server_that_is_no_scheduler_is_said_as_such(tmp_path, one_session, monkeypatch,
+                                                       behaviour, said):
+    import time
+
+    import imucal.fleet.scheduler as scheduler
+
+    monkeypatch.setattr(scheduler, "PROBE_SECONDS", 0.5)
+    with _server(behaviour) as address:
+        t0 = time.monotonic()
+        rc, err = _run_cli(["batch", one_session, "--out-dir", tmp_path / "o",
+                            "--scheduler", address])
+    assert time.monotonic() - t0 < 3
+    assert rc == 1 and err.count("\n") == 1, err  # the banner was "not enough memory"
+    assert err.startswith(f"imucal: error: --scheduler: {address} is a server, but not a "
+                          "Dask scheduler"), err
+    assert said in err
+
+
+def test_a_scheduler_address_as_dask_reads_it():
+    from imucal.fleet.scheduler import split_address
+
+    assert split_address("tcp://10.0.0.5:8786") == ("tcp", "10.0.0.5", 8786)
+    assert split_address("10.0.0.5:8786") == ("tcp", "10.0.0.5", 8786)  # Dask's default
+    assert split_address("tcp://[::1]:8786") == ("tcp", "::1", 8786)
+    assert split_address("tls://sched.lan:8786") == ("tls", "sched.lan", 8786)
+
+
+# --- fleet report: an outlier among three or four units (issue 27) ----------------------------
+
+
+def _fleet_rows(b_x: list[float]) -> list[dict]:
+    """One calibration per unit, the accelerometer's b_x as given (g), the rest alike."""
+    from datetime import datetime, timezone
+
+    from imucal.fleet.drift import PARAMS
+
+    when = datetime(2024, 4, 20, tzinfo=timezone.utc)
+    rows = []
+    for i, b in enumerate(b_x):
+        row = {p.column: (1.0 if p.group == "scale" else 0.0) + 1e-4 * ((i * 7 + k) % 5)
+               for k, p in enumerate(PARAMS)}  # spread, nothing out: only b_x stands out
+        rows.append(row | {"device": f"u{i}", "calibrated_at": when, "seq": 1,
+                           "path": f"u{i}/c.json", "acc_unit_raw": "g",
+                           "gyro_unit_raw": "rad/s", "acc_b_x": b})
+    return rows
+
+
+@pytest.mark.parametrize("b_x, flagged", [
+    ([0.005, 0.005, 0.120], "u2"),  # the others agree: MAD = 0, |z| was at most 2.4
+    ([0.005, 0.005, 0.005, 0.120], "u3"),  # ... at most 3.2
+    ([0.120, 0.0050, 0.0052], "u0"),  # Q = 0.998
+    ([0.005, 0.006, 0.004, -0.110], "u3"),  # Q = 0.991
+])
+def test_a_clear_outlier_among_three_or_four_units_is_flagged(b_x, flagged):
+    from imucal.fleet.drift import fleet_lines, fleet_report
+
+    rep = fleet_report(_fleet_rows(b_x))
+    assert [(o.device, o.spread.param.label) for o in rep.outliers] == [
+        (flagged, "accelerometer b_x")]
+    text = "\n".join(fleet_lines(rep))
+    assert f"outliers: 1:\n  {flagged}: accelerometer b_x = " in text
+    assert "Dixon's Q = " in text
+    n = len(b_x)
+    assert f"note: {n} units: a robust z is degenerate with so few; Dixon's Q judged" in text
+
+
+@pytest.mark.parametrize("b_x", [[0.003, 0.008, 0.120],  # Q = 0.957: with three, not clear
+                                 [0.005, 0.020, 0.035, 0.050],  # evenly spread
+                                 [0.005, 0.005, 0.005]])  # all equal
+def test_three_or_four_units_without_a_clear_outlier_flag_none(b_x):
+    from imucal.fleet.drift import dixon_q, fleet_report
+
+    rep = fleet_report(_fleet_rows(b_x))
+    assert rep.outliers == []
+    q, _ = dixon_q(np.array(b_x))
+    assert q is None if len(set(b_x)) == 1 else q < 0.96
+
+
+def test_dixon_q_is_the_gap_over_the_range():
+    from imucal.fleet.drift import dixon_q
+
+    assert dixon_q(np.array([1.0, 2.0, 11.0])) == (pytest.approx(0.9), 2)
+    assert dixon_q(np.array([-9.0, 0.0, 1.0, 1.0])) == (pytest.approx(0.9), 0)
+
+
+def test_five_units_are_still_judged_by_robust_z():
+    from imucal.fleet.drift import fleet_report
+
+    rep = fleet_report(_fleet_rows([0.005, 0.006, 0.004, 0.0055, 0.120]))
+    [o] = rep.outliers
+    assert o.device == "u4" and o.spread.q is None and o.z > 3.5

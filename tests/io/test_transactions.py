@@ -143,7 +143,8 @@ def hook_dir(tmp_path_factory) -> Path:
 
 def child_env(hook_dir: Path, hook: str | None = None, **extra: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k not in ("IMUCAL_DEBUG", "PYTHONPATH")}
-    env["PYTHONPATH"] = str(hook_dir)
+    # the child runs the imucal under test (a worktree's, not the one the venv installed)
+    env["PYTHONPATH"] = os.pathsep.join([str(hook_dir), str(Path(imucal.__file__).parents[1])])
     if hook:
         env["IMUCAL_TEST_HOOK"] = hook
     env.update(extra)
@@ -160,6 +161,10 @@ SCENARIOS = {
                                             "interrupted"),
     "sigterm during the recording": ([], "import|viewer.blueprint|1|SIGTERM", None, 130,
                                      "interrupted"),
+    # issue 27: SIGHUP (a terminal closed) is a polite kill like SIGTERM (was: the process died
+    # on the spot, leaving calib.json's temporary and the lock files)
+    "sighup after calib.json's temporary": ([], "os.rename|" + PREFIX + "|1|SIGHUP", None, 130,
+                                            "interrupted"),
     "file too large: the table": ([], None, lambda s: 2 * s["calib.json"], 1,
                                   "cal.csv: could not be written: File too large"),
     "file too large: the recording": ([], None, lambda s: (s["cal.csv"] + s["run.rrd"]) // 2,
