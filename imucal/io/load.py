@@ -124,7 +124,9 @@ def load_session(
 
     store = Spill(spill if spill is not None else SpillPolicy(), source)
     threads = usable_threads() if threads is None else max(1, int(threads))
-    sha256 = _sha256_soon(paths, threads)
+    # A log's reader hashes the bytes it reads (ULog, DataFlash, ROS bags): the file is then
+    # hashed here only where the reader did not (HDF5), on asking, not in a thread beside it.
+    sha256 = _sha256_soon(paths, threads if log is None else 1)
     chosen = None
     if log is not None:
         chosen = choose_streams(paths[0], log, source, select, acc_only, opts)
@@ -153,7 +155,7 @@ def load_session(
         acc_unit=acc_unit,
         gyro_unit=final_gyro_unit,
         source=source,
-        sha256=sha256(),
+        sha256=(chosen.sha256 if chosen is not None and chosen.sha256 else sha256()),
         notes=tuple(dict.fromkeys(opts.notes)),  # a shared time column speaks once
         init_still_s=opts.init_still_s,
         storage=store.note(),

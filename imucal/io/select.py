@@ -25,12 +25,14 @@ _OPTION = {"acc": "--acc", "gyro": "--gyro", "mag": "--mag", "temp": "--temp"}
 
 @dataclass(frozen=True)
 class Choice:
-    """The streams taken for calibration, the others the recording holds, and what was said."""
+    """The streams taken for calibration, the others the recording holds, and what was said;
+    ``sha256`` the file's, as its reader hashed the bytes it read ("" where it did not)."""
 
     acc: Stream
     gyro: Stream | None
     others: tuple[Stream, ...]
     said: tuple[str, ...]
+    sha256: str = ""
 
 
 def keep_for(selectors: dict[str, str | None]) -> Callable[[str], bool] | None:
@@ -103,7 +105,7 @@ def choose(streams: StreamSet, selectors: dict[str, str | None], acc_only: bool)
             find(streams, kind, selectors[kind])  # named: it must exist
     chosen = [acc] + ([gyro] if gyro is not None else [])
     others = tuple(s for s in streams.streams if all(s is not c for c in chosen))
-    return Choice(acc, gyro, others, tuple(said))
+    return Choice(acc, gyro, others, tuple(said), streams.sha256)
 
 
 def parts_of(choice: Choice) -> dict[str, Part]:
