@@ -182,7 +182,7 @@ def _magnetometer(session: Session, block_times: np.ndarray, up: np.ndarray,
     first on load) calibrated over the whole session (M8, stages/mag.py), with the still
     blocks' calibrated gravity for its rotation to the accelerometer; what it found said in
     ``warnings``. None without a magnetometer, or when it cannot be calibrated (said)."""
-    stream = next((s for s in session.others if s.kind == "mag"), None)
+    stream = session.magnetometer
     if stream is None:
         return None
     try:

@@ -149,7 +149,7 @@ def _overview(result: Result) -> tuple[Line, ...]:
 def _magnetometer(result: Result) -> tuple[Line, ...]:
     """The magnetometer in a line (M8, stages/mag.py): its field, the norm's error in and out
     of sample, the directions reached; or why it was not calibrated."""
-    stream = next((x for x in result.session.others if x.kind == "mag"), None)
+    stream = result.session.magnetometer
     if stream is None:
         return ()
     fit = result.magnetometer

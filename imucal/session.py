@@ -9,7 +9,7 @@ from functools import cached_property
 import numpy as np
 
 from imucal.numerics.order_stats import Chunks, ranked_values
-from imucal.streams import Stream
+from imucal.streams import Stream, first_of_kind
 
 ACC_UNITS = ("g", "m/s^2", "counts")
 GYRO_UNITS = ("rad/s", "deg/s", "counts")
@@ -53,6 +53,12 @@ class Session:
             raise ValueError(f"acc_unit must be one of {ACC_UNITS}, got {self.acc_unit!r}")
         if self.gyro is not None and self.gyro_unit not in ("rad/s", "counts"):
             raise ValueError(f"gyro_unit must be 'rad/s' or 'counts', got {self.gyro_unit!r}")
+
+    @property
+    def magnetometer(self) -> Stream | None:
+        """The magnetometer calibrated beside the pair (stages/mag.py): the first of
+        :attr:`others`, where the loader puts the one ``--mag`` names; None without one."""
+        return first_of_kind(self.others, "mag")
 
     @property
     def has_gyro(self) -> bool:

@@ -117,3 +117,9 @@ class StreamSet:
 
     def kinds(self) -> tuple[str, ...]:
         return tuple(k for k in KINDS if self.of_kind(k))
+
+
+def first_of_kind(streams: tuple[Stream, ...], kind: str) -> Stream | None:
+    """The first stream of ``kind``: the magnetometer a calibration takes beside its pair is
+    the first of the session's other streams (the one ``--mag`` names is put first)."""
+    return next((s for s in streams if s.kind == kind), None)

@@ -27,7 +27,7 @@ MAG_MODEL = ("m = R_am M (m_raw - b) (imucal M8): b the hard iron and M the soft
 def magnetometer_section(result: Result) -> dict:
     """The ``magnetometer`` section, only for a session holding one (a session without keeps
     its calibration file byte for byte)."""
-    stream = next((x for x in result.session.others if x.kind == "mag"), None)
+    stream = result.session.magnetometer
     if stream is None:
         return {}
     fit = result.magnetometer

@@ -65,7 +65,7 @@ def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str 
     columns = [session.acc, gyro]
     names = ["ax", "ay", "az", "gx", "gy", "gz"]
     if mag:
-        stream = next(s for s in session.others if s.kind == "mag")
+        stream = session.magnetometer
         rows = np.searchsorted(session.t_acc, stream.t)
         rows = np.minimum(rows, len(session.t_acc) - 1)
         if not np.allclose(session.t_acc[rows], stream.t, rtol=0, atol=1e-9):

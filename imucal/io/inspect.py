@@ -18,7 +18,7 @@ import numpy as np
 from imucal.errors import ImucalError
 from imucal.io.readers import display_name
 from imucal.io.select import choose
-from imucal.streams import Stream
+from imucal.streams import Stream, first_of_kind
 
 
 @dataclass(frozen=True)
@@ -101,8 +101,8 @@ def inspect_file(path: str | os.PathLike[str], **load_kw: Any) -> FileLines:
 
 def _first_mag(others) -> set[int]:
     """The magnetometer calibrate takes beside the pair: the first (stages/mag.py)."""
-    return {id(s) for s in others if s.kind == "mag"} and {
-        id(next(s for s in others if s.kind == "mag"))}
+    mag = first_of_kind(others, "mag")
+    return set() if mag is None else {id(mag)}
 
 
 def _imus(streams: tuple[Stream, ...], picked: set[int]) -> tuple[str, ...]:

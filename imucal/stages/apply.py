@@ -123,7 +123,7 @@ class Calibration:
         if self.applies_gyro(session):
             gyro = _apply_piecewise(session.gyro, session.t_gyro, self.segments, "gyro")
         t_mag = mag = None
-        stream = next((x for x in session.others if x.kind == "mag"), None)
+        stream = session.magnetometer
         if self.mag is not None and stream is not None:
             if None not in (self.mag.unit, stream.unit) and self.mag.unit != stream.unit:
                 raise ImucalError(f"the calibration's magnetometer was fitted in "
