@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from imucal.errors import ImucalError
+from imucal.errors import ImucalError, plural
 from imucal.models import SensorModel
 from imucal.numerics.directions import distinct_orientations
 from imucal.result import Result, Segment, Triad
@@ -219,7 +219,8 @@ def _still_blocks(session: Session, settings: Settings, g_in: float,
     det = split_at_gaps(det, session.acc, session.t_acc)
     det, excluded = _drop_saturated(session.acc, det)
     if excluded:
-        warnings.append(RunWarning("acc_saturated_blocks", f"excluded {excluded} static block(s) "
+        blocks = plural(excluded, 'static block')
+        warnings.append(RunWarning("acc_saturated_blocks", f"excluded {blocks} "
                                    "holding saturated accelerometer samples (flat at the "
                                    "sensor's limit)"))
     _check_blocks(session, det, settings, g_in)
@@ -322,7 +323,7 @@ def _check_blocks(session: Session, det: Detection, settings: Settings, g_in: fl
         return
     rate = 1.0 / float(np.median(np.diff(session.t_acc)))
     tun = det.tuning
-    found = (f"found {n} static blocks of at least {det.min_len} samples "
+    found = (f"found {plural(n, 'static block')} of at least {det.min_len} samples "
              f"({det.min_len / rate:.2g} s) in {orient} distinct orientation"
              f"{'' if orient == 1 else 's'}")
     still = float(np.sum(det.blocks[:, 1] - det.blocks[:, 0])) / len(session.acc)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal.errors import plural
 from imucal.models import ACC_PARAM_NAMES, GYRO_PARAM_NAMES
 from imucal.result import Result, Segment
 from imucal.stages.accel import AccFit
@@ -212,8 +213,8 @@ def _details(result: Result) -> tuple[Line, ...]:
     how = (f"L-curve corner, point {lc.corner + 1} of {len(lc.lambdas)}" if lc is not None
            else "fixed")
     return (
-        Line("detector", f"{len(det.blocks)} static blocks (window {det.window}, min length "
-                         f"{det.min_len} samples, k {fmt(det.k, '.3g')})"),
+        Line("detector", f"{plural(len(det.blocks), 'static block')} (window {det.window}, "
+                         f"min length {det.min_len} samples, k {fmt(det.k, '.3g')})"),
         Line("grouping", result.grouping.mode),
         Line("lambda", f"{fmt(result.whole.lam, '.3g')} ({how})"),
     )

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imucal.errors import ImucalError
+from imucal.errors import ImucalError, plural
 from imucal.models import GYRO_PARAM_NAMES, SensorModel, gyro_theta
 from imucal.numerics.determinacy import determinacy
 from imucal.numerics.directions import DISTINCT_ANGLE_DEG
@@ -152,7 +152,7 @@ def static_bias(w_raw, t, block_times: np.ndarray, how: str) -> tuple[np.ndarray
     sums = np.array([segment_sums(w_raw[a:b], np.zeros(1, np.int64), np.full(1, b - a))[0]
                      for a, b in zip(lo, hi)])
     n = int((hi - lo).sum())
-    return sums.sum(axis=0) / n, f"mean over all {len(lo)} static blocks ({n} samples)"
+    return sums.sum(axis=0) / n, f"mean over all {plural(len(lo), 'static block')} ({n} samples)"
 
 
 def _find_scale(tr: Transitions, bias: np.ndarray, u_prev: np.ndarray, u_meas: np.ndarray
@@ -255,8 +255,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
     gathers with a 1-D integer array, never whole (they may be arrays kept on disk; issue 12).
     """
     if len(block_times) < 2:
-        raise ImucalError(f"{len(block_times)} static block(s): the gyroscope needs at least two "
-                          "still poses with a rotation between them", source="gyroscope",
+        raise ImucalError(f"{plural(len(block_times), 'static block')}: the gyroscope needs at "
+                          "least two still poses with a rotation between them", source="gyroscope",
                           field="static blocks")
     warnings: list[RunWarning] = []
     u = gravity / np.linalg.norm(gravity, axis=1, keepdims=True)
