@@ -1,5 +1,6 @@
 """The fleet as Rerun recordings: a device's drift on a ``calibrated_at`` timeline, and the
-fleet report (each parameter's robust z per device, outliers flagged) a QA engineer opens.
+fleet report (each parameter's robust z per device, the outliers the fleet's test found
+flagged: :mod:`imucal.fleet.drift`) a QA engineer opens.
 
 Everything logged is :mod:`imucal.fleet.drift`'s; this module only lays it out (positions in
 the 2D plot, clipping for display, labels, markdown).
@@ -18,11 +19,11 @@ drift/stats/<device>                             static        AnyValues: parame
                                                                parameter), calibrated_at, path
 drift/summary                                    static        TextDocument (markdown): the table
 fleet/z/points                                   static        Points2D at (parameter index, -z
-                                                               clipped to +-Z_SHOWN), red beyond
-                                                               +-3.5, outliers labelled; AnyValues
+                                                               clipped to +-Z_SHOWN), the outliers
+                                                               red and labelled; AnyValues
                                                                device, parameter, value, z
-fleet/z/frame                                    static        the +-3.5 lines, the zero line and
-                                                               the parameter names
+fleet/z/frame                                    static        the zero line and the parameter
+                                                               names
 fleet/parameters/<sensor>/<name>                 static        AnyValues: unit, devices, values,
                                                                z, median, mad, z_from, outliers
 fleet/outliers                                   static        AnyValues: count, and device,
@@ -41,7 +42,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from imucal.fleet.drift import QUALITY, Z_LIMIT, DeviceDrift, FleetReport
+from imucal.fleet.drift import ESD_ALPHA, QUALITY, DeviceDrift, FleetReport
 from imucal.fleet.index import iso
 from imucal.io.atomic import atomic_path
 
@@ -185,8 +186,9 @@ def _log_fleet(rec: rr.RecordingStream, rep: FleetReport) -> None:
     devices, params, values, zs = [], [], [], []
     n = max(len(rep.devices), 1)
     for i, s in enumerate(rep.spreads):
-        for d, v, z in zip(s.devices, s.values, s.z):
-            out = abs(z) > Z_LIMIT
+        flagged = set(s.outliers.tolist())
+        for k, (d, v, z) in enumerate(zip(s.devices, s.values, s.z)):
+            out = k in flagged  # the fleet's test decides, not a line on the z axis
             # Devices side by side within a parameter's column, in the fleet's order.
             xs.append(i + 0.6 * (rep.devices.index(d) + 0.5) / n - 0.3)
             ys.append(-float(np.clip(z, -Z_SHOWN, Z_SHOWN)))  # 2D views draw y downwards
@@ -222,12 +224,9 @@ def _log_fleet(rec: rr.RecordingStream, rep: FleetReport) -> None:
 
 
 def _log_frame(rec: rr.RecordingStream, names: list[str]) -> None:
-    """The limits, the zero line and the parameter names: a Spatial2DView has no axes."""
+    """The zero line and the parameter names: a Spatial2DView has no axes. No limit line: the
+    outliers are decided by a test on the fleet's values, not by a fixed z."""
     right = len(names) - 0.5
-    strips = [[[-0.5, -Z_LIMIT], [right, -Z_LIMIT]], [[-0.5, Z_LIMIT], [right, Z_LIMIT]]]
-    rec.log("fleet/z/frame/limits", rr.LineStrips2D(
-        strips, colors=rgba([BEFORE]), labels=[f"z = +{Z_LIMIT:g}", f"z = −{Z_LIMIT:g}"],
-        radii=rr.Radius.ui_points(1.0), draw_order=5.0), static=True)
     rec.log("fleet/z/frame/zero", rr.LineStrips2D(
         [[[-0.5, 0.0], [right, 0.0]]], colors=rgba([GREY]), radii=rr.Radius.ui_points(0.5),
         draw_order=1.0), static=True)
@@ -248,7 +247,7 @@ def _fleet_blueprint(n_params: int) -> rrb.Blueprint:
     bounds = rrb.VisualBounds2D(x_range=[-1.0, max(n_params, 1)],
                                 y_range=[-Z_SHOWN - 1.5, Z_SHOWN + 5.0])
     z = rrb.Spatial2DView(name=f"Robust z per parameter and device, up = positive (outliers "
-                               f"|z| > {Z_LIMIT:g} in red; drawn within ±{Z_SHOWN:g})",
+                               f"in red; drawn within ±{Z_SHOWN:g})",
                           origin="fleet/z", contents=["fleet/z/**"], visual_bounds=bounds)
     return rrb.Blueprint(
         rrb.Tabs(rrb.Horizontal(z, rrb.TextDocumentView(name="Report", origin="fleet/report"),
@@ -260,8 +259,10 @@ def _fleet_blueprint(n_params: int) -> rrb.Blueprint:
 def _fleet_markdown(rep: FleetReport) -> str:
     out = rep.outliers
     lines = [f"# Fleet report: {len(rep.devices)} devices at {iso(rep.at)}", "",
-             f"Newest calibration of each device. Robust z = 0.6745 (x − median) / MAD; a unit "
-             f"is an outlier when |z| > {Z_LIMIT:g}.", "", f"## Outliers: {len(out)}", ""]
+             "Newest calibration of each device. Robust z = 0.6745 (x − median) / MAD shows "
+             "where each unit lies; the outliers are those of the generalized ESD test at "
+             f"{ESD_ALPHA:.0%} per parameter (Dixon's Q with 3 or 4 units).", "",
+             f"## Outliers: {len(out)}", ""]
     lines += [f"- **{o.device}**: {o.spread.param.label} = {o.value:.5g} {o.spread.unit} "
               f"(median {o.spread.median:.5g}, z = {o.z:+.1f})" for o in out] or ["none"]
     lines += ["", "## Parameters", "",

@@ -1,6 +1,6 @@
 """How calibrations move: each parameter of one device over time (:func:`device_drift`), and
 each parameter across the fleet, newest calibration per device, with the units that stand out
-flagged by a robust z-score (:func:`fleet_report`).
+flagged (:func:`fleet_report`: Dixon's Q for 3-4 units, the generalized ESD test from 5).
 
 The parameters are those of the store's index (:mod:`imucal.fleet.index`): the first
 segment's accelerometer (method.md M2: misalignment a_yz, a_zy, a_zx; scale s; bias b in the
@@ -8,9 +8,10 @@ raw unit) and gyroscope (M4: six misalignment angles, scale, bias b_g in the raw
 
 Robust z (Iglewicz and Hoaglin's modified z-score): ``z = 0.6745 (x - median) / MAD``, MAD the
 median absolute deviation from the median; 0.6745 makes it comparable to a standard score for
-normal data, and a unit is flagged when ``|z| > 3.5``. A median and MAD are not moved by the
-outliers they are meant to find, where a mean and standard deviation would be (one unit at 120
-mg among ten at 5 mg inflates the standard deviation until it hides itself). When more than
+normal data; the usual rule flags ``|z| > 3.5`` (which this module no longer does: see below).
+A median and MAD are not moved by the outliers they are meant to find, where a plain mean and
+standard deviation would be (one unit at 120 mg among ten at 5 mg inflates the standard
+deviation until it hides itself). When more than
 half the fleet has the same value (MAD = 0) the mean absolute deviation stands in
 (``z = (x - median) / (1.2533 mean|x - median|)``), and the report says so.
 
@@ -25,6 +26,22 @@ between the unit at either end and its nearest neighbour; the farther end's unit
 Q exceeds the 99 % critical value of Rorabacher (1991), 0.994 for three units and 0.926 for four
 (a false alarm at 1 % per parameter for normally spread units; measured by simulation: 1.0 %
 and 0.9 %). Fewer than three units are not judged at all. The text says which test judged.
+
+From five units on, the robust z is what the report draws, but it does not decide either: its
+|z| > 3.5 was made for flagging single values, and over a small fleet some unit crosses it by
+chance for 21 % of normally spread parameters with five units, 14 % with eight, 12 % with ten
+and still 9 % with fifty (measured by simulation, 2e5 fleets each): with twenty parameters
+nearly every report flagged a unit that was not unusual. Rosner's generalized extreme studentized
+deviate test decides instead (Rosner 1983, made for "up to r outliers" in n values): for
+``i = 1..r`` the unit farthest from the mean of those left, in standard deviations of those
+left, ``R_i = max |x - mean| / sd``, is set aside; the number of outliers is the largest ``i``
+with ``R_i > lambda_i``, ``lambda_i = (n - i) t / sqrt((n - i - 1 + t^2)(n - i + 1))``, ``t``
+the Student t quantile ``1 - alpha / (2 (n - i + 1))`` with ``n - i - 1`` degrees of freedom,
+``alpha`` = 1 %, ``r`` a fifth of the fleet (at least one). Setting the farthest aside before
+judging the next keeps one wild unit from hiding another (the masking a plain mean and
+standard deviation suffer); measured by simulation (4e4 fleets each), a false alarm for 1.0 %
+(five units) to 1.5 % (eight) of normally spread parameters, and a unit 6 standard deviations
+out found in 16 % of fleets of five, 55 % of eight, 70 % of ten and 95 % of thirty.
 """
 
 from __future__ import annotations
@@ -39,12 +56,12 @@ from imucal.fleet.index import GYRO_NAMES, iso
 from imucal.fleet.store import format_table, newest
 from imucal.models import ACC_PARAM_NAMES
 
-Z_LIMIT = 3.5
 MIN_DEVICES = 3  # a median and a MAD of fewer say nothing about what is usual
 _MAD_TO_Z = 0.6745  # the MAD of a standard normal: z = 0.6745 (x - median) / MAD
 _MEANAD_TO_SIGMA = 1.253314  # sqrt(pi / 2): mean absolute deviation -> sigma, normal data
 _DAY = 86400.0
 DIXON_Q99 = {3: 0.994, 4: 0.926}  # Rorabacher (1991), 99 %: the units Dixon's Q judges
+ESD_ALPHA = 0.01  # the generalized ESD test's level, per parameter (five units or more)
 
 
 @dataclass(frozen=True)
@@ -206,6 +223,8 @@ class Spread:
     # 3 or 4 units: Dixon's Q of the unit at the farther end (see the module's text)
     q: float | None = None
     suspect: int | None = None  # that unit's index
+    # 5 or more: the generalized ESD test's outliers, and each one's R_i and lambda_i
+    esd: tuple[tuple[int, float, float], ...] = ()
 
     @property
     def q_limit(self) -> float | None:
@@ -215,7 +234,7 @@ class Spread:
     def outliers(self) -> np.ndarray:
         if self.q is not None:
             return np.array([self.suspect] if self.q > self.q_limit else [], dtype=int)
-        return np.flatnonzero(np.abs(self.z) > Z_LIMIT)
+        return np.array(sorted(i for i, _, _ in self.esd), dtype=int)
 
 
 def dixon_q(values: np.ndarray) -> tuple[float | None, int | None]:
@@ -229,6 +248,35 @@ def dixon_q(values: np.ndarray) -> tuple[float | None, int | None]:
         return None, None
     low, high = (ends[1] - ends[0]) / span, (ends[-1] - ends[-2]) / span
     return (float(high), int(order[-1])) if high >= low else (float(low), int(order[0]))
+
+
+def generalized_esd(values: np.ndarray, alpha: float = ESD_ALPHA,
+                    r: int | None = None) -> tuple[tuple[int, float, float], ...]:
+    """Rosner's generalized ESD test (see the module's text): the outliers among ``values``
+    (up to ``r``, a fifth of them by default), each as (index, R_i, lambda_i), farthest
+    first; empty when none."""
+    from scipy.stats import t as student_t
+
+    x = np.asarray(values, dtype=float)
+    n = len(x)
+    r = max(1, n // 5) if r is None else r
+    left = np.ones(n, dtype=bool)
+    steps: list[tuple[int, float, float]] = []
+    found = 0
+    for i in range(1, min(r, n - 2) + 1):
+        rest = x[left]
+        sd = float(rest.std(ddof=1))
+        if not sd > 0:
+            break
+        dev = np.where(left, np.abs(x - rest.mean()), -1.0)
+        k = int(np.argmax(dev))
+        tq = float(student_t.ppf(1.0 - alpha / (2.0 * (n - i + 1)), n - i - 1))
+        lam = (n - i) * tq / np.sqrt((n - i - 1 + tq * tq) * (n - i + 1))
+        steps.append((k, float(dev[k] / sd), float(lam)))
+        left[k] = False
+        if dev[k] / sd > lam:
+            found = i
+    return tuple(steps[:found])
 
 
 def robust_z(values: np.ndarray) -> tuple[np.ndarray, float, float, str]:
@@ -302,7 +350,8 @@ def fleet_report(rows: list[dict[str, Any]], at: datetime | None = None) -> Flee
             values = np.array([picked[d][p.column] for d in devs], dtype=float)
             z, med, mad, how = robust_z(values)
             q, suspect = dixon_q(values) if len(devs) in DIXON_Q99 else (None, None)
-            spreads.append(Spread(p, unit, devs, values, med, mad, z, how, q, suspect))
+            esd = generalized_esd(values) if q is None and len(devs) not in DIXON_Q99 else ()
+            spreads.append(Spread(p, unit, devs, values, med, mad, z, how, q, suspect, esd))
     return FleetReport(at, list(picked), [r["calibrated_at"] for r in picked.values()],
                        [r["path"] for r in picked.values()], spreads, notes)
 
@@ -310,7 +359,8 @@ def fleet_report(rows: list[dict[str, Any]], at: datetime | None = None) -> Flee
 def fleet_lines(rep: FleetReport) -> list[str]:
     """The fleet report as text: a row per parameter, then the outliers."""
     head = [f"fleet: {len(rep.devices)} devices, the newest calibration of each at or before "
-            f"{iso(rep.at)}; robust z = 0.6745 (x - median) / MAD, outlier |z| > {Z_LIMIT:g}"]
+            f"{iso(rep.at)}; robust z = 0.6745 (x - median) / MAD; outliers by the "
+            f"generalized ESD test at {ESD_ALPHA:.0%} (Dixon's Q for 3-4 units)"]
     body = []
     for s in rep.spreads:
         flagged = ", ".join(_judged(s, i) for i in s.outliers)
@@ -344,7 +394,9 @@ def _judged(s: Spread, i: int) -> str:
 
 
 def _figure(s: Spread, i: int) -> str:
-    """The figure that flagged unit ``i``: Dixon's Q for 3-4 units, else its robust z."""
+    """The figure that flagged unit ``i``: Dixon's Q for 3-4 units, else its ESD statistic
+    beside its robust z."""
     if s.q is not None:
         return f"Dixon's Q = {s.q:.3f} > {s.q_limit:g}"
-    return f"z = {s.z[i]:+.1f}"
+    r, lam = next((r, lam) for k, r, lam in s.esd if k == i)
+    return f"z = {s.z[i]:+.1f}, ESD R = {r:.2f} > {lam:.2f}"

@@ -306,3 +306,38 @@ def test_five_units_are_still_judged_by_robust_z():
     rep = fleet_report(_fleet_rows([0.005, 0.006, 0.004, 0.0055, 0.120]))
     [o] = rep.outliers
     assert o.device == "u4" and o.spread.q is None and o.z > 3.5
+
+
+def test_generalized_esd_reproduces_rosners_worked_example():
+    # Rosner (1983)'s 54 values, as the NIST handbook works them (alpha 5 %, up to 10):
+    # three outliers, the second one masked by the third (R_2 < lambda_2, R_3 > lambda_3).
+    from imucal.fleet.drift import generalized_esd
+
+    x = np.array([-0.25, 0.68, 0.94, 1.15, 1.20, 1.26, 1.26, 1.34, 1.38, 1.43, 1.49, 1.49,
+                  1.55, 1.56, 1.58, 1.65, 1.69, 1.70, 1.76, 1.77, 1.81, 1.91, 1.94, 1.96,
+                  1.99, 2.06, 2.09, 2.10, 2.14, 2.15, 2.23, 2.24, 2.26, 2.35, 2.37, 2.40,
+                  2.47, 2.54, 2.62, 2.64, 2.90, 2.92, 2.92, 2.93, 3.21, 3.26, 3.30, 3.59,
+                  3.68, 4.30, 4.64, 5.34, 5.42, 6.01])
+    got = generalized_esd(x, alpha=0.05, r=10)
+    assert [k for k, _, _ in got] == [53, 52, 51]
+    assert [r for _, r, _ in got] == pytest.approx([3.119, 2.943, 3.179], abs=1e-3)
+    assert [lam for _, _, lam in got] == pytest.approx([3.159, 3.151, 3.144], abs=1e-3)
+
+
+@pytest.mark.parametrize("n", [5, 8, 12])
+def test_a_normally_spread_fleet_rarely_flags_a_unit(n):
+    # The |z| > 3.5 rule flagged some unit for 21 % (n = 5) to 12 % (n = 12) of normally
+    # spread parameters; the generalized ESD test at 1 % must stay near 1 %.
+    from imucal.fleet.drift import generalized_esd
+
+    rng = np.random.default_rng(n)
+    flagged = sum(bool(generalized_esd(rng.normal(0.005, 0.001, n))) for _ in range(2000))
+    assert flagged / 2000 < 0.03
+
+
+def test_two_wild_units_among_ten_are_both_flagged():
+    from imucal.fleet.drift import fleet_report
+
+    b_x = [0.005, 0.006, 0.004, 0.0055, 0.0045, 0.0052, 0.0048, 0.0058, 0.120, 0.135]
+    rep = fleet_report(_fleet_rows(b_x))
+    assert sorted(o.device for o in rep.outliers) == ["u8", "u9"]
