@@ -322,3 +322,53 @@ def test_without_triads_or_temperature_the_exports_are_unchanged(device, tmp_pat
                              data.decode()), name
     for name in ("x.px4", "x.ardupilot", "x.c", "x.json", "x.yaml"):
         assert a[name] != b[name]
+
+
+def test_instances_are_the_ones_the_streams_state():
+    from imucal.io.exports.sections import instance_slots
+
+    ulog = "acc sensor_accel:1 (ULog topic sensor_accel, multi-instance 1, fields x, y, z)"
+    assert instance_slots(ulog, ["acc sensor_accel:0", "acc sensor_accel:2"]) == ([1, 0, 2], [])
+    assert instance_slots("acc IMU (DataFlash message IMU)", ["acc IMU3"]) == ([0, 2], [])
+    assert instance_slots("acc IMU[1] (x)", ["acc IMU[0]"]) == ([1, 0], [])
+    assert instance_slots("the calibrated accelerometer", ["acc a2", "acc a3"]) == ([0, 1, 2], [])
+    # Two streams stating one instance, or one stating none: calib.json's order, and said.
+    slots, said = instance_slots("the calibrated accelerometer", ["acc a", "acc /imu2"])
+    assert slots == [0, 1, 2] and "calib.json's order" in said[0]
+
+
+def test_a_triad_of_several_segments_needs_the_segment(device, tmp_path):
+    path, *_ = device
+    doc = json.loads(path.read_text())
+    entry = doc["triads"]["triads"][0]
+    (seg,) = entry["segments"]
+    mid = (seg["t_start"] + seg["t_end"]) / 2
+    late = json.loads(json.dumps(seg)) | {"t_start": mid + 1.0}
+    late["accelerometer"]["b"] = [0.01, 0.02, 0.03]
+    entry["segments"] = [seg | {"t_end": mid}, late]
+    entry.pop("temperature")  # its accelerometer then takes its segment's own model
+    two = tmp_path / "two.json"
+    two.write_text(json.dumps(doc))
+    with pytest.raises(imucal.ImucalError, match=r"acc a2 has 2 segments .*--segment N"):
+        export(two, "px4", tmp_path / "p")
+    export(two, "ardupilot", tmp_path / "p", segment=1)  # the reference's one segment
+    p = _ardupilot((tmp_path / "p").read_text())
+    want = np.array(seg["accelerometer"]["b"]) * G_N  # the first half overlaps it longest
+    assert np.allclose([p[f"INS_ACC2OFFS_{a}"] for a in "XYZ"], want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("change", [
+    ("temperature", "accelerometer", "coefficients", [[1.0, 2.0]]),
+    ("temperature", "gyroscope", "order", 5),
+    ("temperature", "accelerometer", "span_degC", [40.0, 20.0]),
+])
+def test_a_damaged_section_is_one_line_naming_its_field(change, device, tmp_path):
+    path, *_ = device
+    doc = json.loads(path.read_text())
+    sec, sensor, key, value = change
+    doc[sec][sensor][key] = value
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(imucal.ImucalError) as e:
+        export(bad, "json", tmp_path / "x.json")
+    assert e.value.field.startswith(f"{sec}.{sensor}.") and str(bad) in str(e.value)

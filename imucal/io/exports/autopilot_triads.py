@@ -180,6 +180,10 @@ def px4(inp: ExportInput, out: Path, segment: int | None) -> Exported:
         with_t = [u for u in units if sensor in u.temperature]
         if with_t:
             rows.append((f"TC_{kind}_ENABLE", 1, 6))  # INT32
+            # PX4's thermal calibration guide: with TC_x_ENABLE = 1 its own later calibration
+            # moves the X0 coefficients (and resets CAL_*OFF/SCALE) instead.
+            notes.append(f"TC_{kind}_ENABLE = 1: a later {sensor} calibration in PX4 adjusts "
+                         f"TC_{kind}n_X0 instead of the CAL parameters")
         for u in with_t:
             per = u.c_in if sensor == "accelerometer" else 1.0
             rows += [(name, v, 9) for name, v in thermal.px4_rows(kind, u.slot,
