@@ -50,6 +50,10 @@ FORMATS: dict[str, Format] = {
 }
 
 
+# The formats that take calib.json's other triads and temperature models (method.md §11, §12).
+CARRY_EXTRAS = ("px4", "ardupilot", "c", "json", "yaml")
+
+
 def exporter(fmt: str) -> Callable[[ExportInput, Path, int | None], Exported]:
     spec = FORMATS.get(fmt)
     if spec is None:
@@ -71,6 +75,10 @@ def export(calibration: str | Path, fmt: str, out: str | Path | None = None, *,
     inp = read_export_input(calibration, noise)
     target = Path(out) if out is not None else default_output(calibration, fmt)
     result = fn(inp, target, segment)
+    if inp.extras is not None and fmt not in CARRY_EXTRAS:
+        result.notes.append(f"the other triads and temperature models are not in {fmt} (only "
+                            f"the reference triad's constant model): {', '.join(CARRY_EXTRAS)} "
+                            "carry them")
     if FORMATS[fmt].directory:
         if target.exists() and not target.is_dir():
             raise ImucalError("expected a directory for the files, and a file of that name "

@@ -20,6 +20,9 @@ device reading |g| in each direction, RMS and maximum, in mg. The gyroscope keep
 offset: its scale and misalignment are dropped, and the rate error is given in % of the rate.
 Both autopilots re-estimate gyroscope offsets at start-up, so those values are a starting point.
 
+Several triads (method.md §11) or a bias in temperature (§12): one instance per IMU and the
+thermal parameters, in :mod:`imucal.io.exports.autopilot_triads` and :mod:`thermal`.
+
 A calibrated magnetometer adds ArduPilot's ``COMPASS_OFS/DIA/ODI/ORIENT`` and PX4's
 ``CAL_MAG0_*`` (:mod:`imucal.io.exports.mag`, where the targets' equations are stated).
 """
@@ -80,6 +83,10 @@ def _losses(inp: ExportInput, seg) -> list[str]:
 def px4(inp: ExportInput, out: Path, segment: int | None) -> Exported:
     """A QGroundControl parameter file (tab-separated: vehicle, component, name, value, type;
     type 9 = float)."""
+    if inp.extras is not None:  # several triads or temperature: one instance per IMU
+        from imucal.io.exports.autopilot_triads import px4 as px4_instances
+
+        return px4_instances(inp, out, segment)
     index, seg = inp.segment(segment, "px4")
     c_in, c_out = si_acc_factors(inp, "px4")
     require_gyro_rad(inp, "px4")
@@ -108,6 +115,10 @@ def px4(inp: ExportInput, out: Path, segment: int | None) -> Exported:
 
 def ardupilot(inp: ExportInput, out: Path, segment: int | None) -> Exported:
     """A Mission Planner / MAVProxy parameter file (``NAME,VALUE`` lines, # comments)."""
+    if inp.extras is not None:  # several triads or temperature: one instance per IMU
+        from imucal.io.exports.autopilot_triads import ardupilot as ardupilot_instances
+
+        return ardupilot_instances(inp, out, segment)
     index, seg = inp.segment(segment, "ardupilot")
     c_in, c_out = si_acc_factors(inp, "ardupilot")
     require_gyro_rad(inp, "ardupilot")

@@ -12,6 +12,8 @@ session) adds ``imucal_mag_M``, ``imucal_mag_b``, ``imucal_mag_R_am`` and
 ``imucal_calibrate_magnetometer(raw, out)``: ``out = R_am M (raw - b)`` in the field's raw unit,
 in the accelerometer's calibrated frame (``R_am M`` precomputed as the piece ``imucal_mag``).
 
+Other triads and a bias in temperature (method.md §11, §12): :mod:`imucal.io.exports.c_triads`.
+
 Arithmetic in ``IMUCAL_REAL`` (``double`` unless defined before the include, e.g. ``float`` on
 an FPU without doubles); the constants are written with 17 significant digits. C99, no
 library: only ``static const`` tables and ``static inline`` functions.
@@ -158,6 +160,12 @@ def export(inp: ExportInput, out: Path, segment: int | None) -> Exported:
     mag = inp.magnetometer
     if mag is not None:
         lines += _magnetometer(mag)
+    more: list[str] = []
+    if inp.extras is not None:  # other triads, temperature (method.md §11, §12)
+        from imucal.io.exports.c_triads import extra_lines
+
+        extra, more = extra_lines(inp)
+        lines += extra
     lines += ["#endif /* IMUCAL_CALIBRATION_H */", ""]
     notes = [f"the full model of {len(segs)} segment(s), both sensors" if has_gyro else
              f"the full model of {len(segs)} segment(s), accelerometer only",
@@ -165,4 +173,4 @@ def export(inp: ExportInput, out: Path, segment: int | None) -> Exported:
     if mag is not None:
         notes.append(f"magnetometer: the full model M8, in {mag.unit}"
                      + (" (R_am not estimated: the identity)" if mag.R_am is None else ""))
-    return Exported(files=[(out, "\n".join(lines))], notes=notes)
+    return Exported(files=[(out, "\n".join(lines))], notes=notes + more)

@@ -19,6 +19,7 @@ import numpy as np
 from imucal.errors import ImucalError
 from imucal.io.calibration_file import load_calibration
 from imucal.io.exports.mag import MagModel, read_mag
+from imucal.io.exports.sections import Extras, read_extras
 from imucal.models import SensorModel
 from imucal.session import STANDARD_GRAVITY
 from imucal.stages.apply import Calibration, SegmentModels
@@ -37,6 +38,8 @@ class ExportInput:
     noise: dict | None  # the calib.json ``noise`` key (or a noise file's figures)
     source: dict  # the calib.json ``source`` key
     magnetometer: MagModel | None = None  # its ``magnetometer`` section, when calibrated
+    # its other triads and temperature models (method.md §11, §12); None: it has neither
+    extras: Extras | None = None
 
     @property
     def has_gyro(self) -> bool:
@@ -97,7 +100,7 @@ def read_export_input(path: str | Path, noise_path: str | Path | None = None) ->
     if noise_path is not None:
         noise = _read_noise(Path(noise_path))
     return ExportInput(path=path, calibration=cal, noise=noise, source=data.get("source") or {},
-                       magnetometer=read_mag(data, path))
+                       magnetometer=read_mag(data, path), extras=read_extras(data, path, cal))
 
 
 def _read_noise(path: Path) -> dict:
@@ -118,9 +121,11 @@ def _read_noise(path: Path) -> dict:
     return noise
 
 
-def si_acc_factors(inp: ExportInput, fmt: str) -> tuple[float, float]:
-    """(m/s^2 per raw unit, m/s^2 per calibrated unit); raw counts have no SI factor."""
-    cal = inp.calibration
+def si_acc_factors(inp: ExportInput, fmt: str, cal: Calibration | None = None
+                   ) -> tuple[float, float]:
+    """(m/s^2 per raw unit, m/s^2 per calibrated unit) of ``cal`` (the file's calibration, or
+    one of its other triads'); raw counts have no SI factor."""
+    cal = cal if cal is not None else inp.calibration
     c_in = ACC_SI.get(cal.acc_unit_raw)
     if c_in is None:
         raise ImucalError(f"{fmt} takes the accelerometer in m/s^2 as its driver reports it, and "
@@ -132,8 +137,9 @@ def si_acc_factors(inp: ExportInput, fmt: str) -> tuple[float, float]:
     return c_in, c_out
 
 
-def require_gyro_rad(inp: ExportInput, fmt: str) -> None:
-    if inp.has_gyro and inp.calibration.gyro_unit_raw == "counts":
+def require_gyro_rad(inp: ExportInput, fmt: str, cal: Calibration | None = None) -> None:
+    cal = cal if cal is not None else inp.calibration
+    if all(s.gyro is not None for s in cal.segments) and cal.gyro_unit_raw == "counts":
         raise ImucalError(f"{fmt} takes the gyroscope in rad/s, and this calibration was fitted "
                           "on raw counts; calibrate the driver's output in rad/s or deg/s",
                           source=str(inp.path), field="units")

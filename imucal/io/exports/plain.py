@@ -6,6 +6,8 @@ given too), ``x_raw`` in the raw unit, ``x`` in the calibrated unit. The pieces 
 time, the last to its end), and between two segments, over the open gap, the parameter-wise
 mean of the two. The noise figures go along with their units, and a calibrated magnetometer
 (M8) its ``magnetometer`` entry: ``m = A (m_raw - b)``, ``A = R_am M``, with M, b, R_am.
+Other triads and temperature models (method.md §11, §12), where calib.json has them:
+``triads`` and ``temperature`` (:mod:`imucal.io.exports.plain_triads`).
 Nothing is lost: doubles are written with 17 significant digits (JSON) or their shortest exact
 form (YAML).
 """
@@ -18,9 +20,11 @@ from pathlib import Path
 
 from imucal.io.exports.common import Exported, ExportInput, piece_models
 from imucal.io.exports.mag import plain_mag
+from imucal.io.exports.plain_triads import extras_document
 from imucal.io.exports.yaml_text import comment_block, dump
 from imucal.io.noise_json import kalibr_block
 from imucal.models import SensorModel
+from imucal.stages.apply import SegmentModels
 
 FORMAT = "imucal-export"
 FORMAT_VERSION = 1
@@ -44,6 +48,28 @@ def document(inp: ExportInput, segment: int | None) -> dict:
     if segment is not None:
         _, one = inp.segment(segment, "this format")
         segs = (one,)
+    pieces = _pieces(segs)
+    gyro = "gyroscope" in pieces[0]
+    kalibr, _ = kalibr_block(inp.noise)
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "model": MODEL,
+        "units": {"accelerometer_raw": cal.acc_unit_raw, "accelerometer": cal.acc_unit,
+                  "g": cal.g, "gyroscope_raw": cal.gyro_unit_raw if gyro else None,
+                  "gyroscope": "rad/s" if gyro else None, "time": "s",
+                  "note": "a gyroscope recorded in deg/s was converted to rad/s before the fit: "
+                          "its raw unit here is rad/s"},
+        "pieces": pieces,
+        "noise": _noise_summary(inp.noise),
+        "kalibr_noise": kalibr,
+        "source": {"calibration": inp.path.name, **(inp.source or {})},
+    } | ({"magnetometer": plain_mag(inp.magnetometer)} if inp.magnetometer is not None else {}
+         ) | (extras_document(inp.extras, lambda cal: _pieces(cal.segments))
+              if inp.extras is not None else {})
+
+
+def _pieces(segs: tuple[SegmentModels, ...]) -> list[dict]:
     pieces = []
     acc = piece_models(segs, "acc")
     gyro = piece_models(segs, "gyro") if all(s.gyro is not None for s in segs) else None
@@ -56,21 +82,7 @@ def document(inp: ExportInput, segment: int | None) -> dict:
             assert gm is not None
             piece["gyroscope"] = _model(gm)
         pieces.append(piece)
-    kalibr, _ = kalibr_block(inp.noise)
-    return {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "model": MODEL,
-        "units": {"accelerometer_raw": cal.acc_unit_raw, "accelerometer": cal.acc_unit,
-                  "g": cal.g, "gyroscope_raw": cal.gyro_unit_raw if gyro is not None else None,
-                  "gyroscope": "rad/s" if gyro is not None else None, "time": "s",
-                  "note": "a gyroscope recorded in deg/s was converted to rad/s before the fit: "
-                          "its raw unit here is rad/s"},
-        "pieces": pieces,
-        "noise": _noise_summary(inp.noise),
-        "kalibr_noise": kalibr,
-        "source": {"calibration": inp.path.name, **(inp.source or {})},
-    } | ({"magnetometer": plain_mag(inp.magnetometer)} if inp.magnetometer is not None else {})
+    return pieces
 
 
 def _noise_summary(noise: dict | None) -> dict | None:
@@ -104,4 +116,16 @@ def _notes(inp: ExportInput, segment: int | None) -> list[str]:
     which = f"segment {segment} of {n}" if segment is not None else f"all {n} segment(s)"
     return [f"the full model ({which}), with units; exact"] + (
         [f"magnetometer: M, b, R_am and A = R_am M, in {inp.magnetometer.unit}; exact"]
-        if inp.magnetometer is not None else [])
+        if inp.magnetometer is not None else []) + _extras_notes(inp)
+
+
+def _extras_notes(inp: ExportInput) -> list[str]:
+    ext = inp.extras
+    if ext is None:
+        return []
+    said = [f"temperature: {', '.join(ext.temperature)} bias in temperature; exact"
+            ] if ext.temperature else []
+    if ext.triads:
+        said.append(f"{len(ext.triads)} other triad(s): own pieces, rotation to the reference, "
+                    "temperature; exact")
+    return said + list(ext.notes)
