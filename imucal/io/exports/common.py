@@ -37,6 +37,7 @@ class ExportInput:
     noise: dict | None  # the calib.json ``noise`` key (or a noise file's figures)
     source: dict  # the calib.json ``source`` key
     magnetometer: MagModel | None = None  # its ``magnetometer`` section, when calibrated
+    quality: dict | None = None  # its ``quality`` key (the C runtime's stored still-norm error)
 
     @property
     def has_gyro(self) -> bool:
@@ -97,7 +98,7 @@ def read_export_input(path: str | Path, noise_path: str | Path | None = None) ->
     if noise_path is not None:
         noise = _read_noise(Path(noise_path))
     return ExportInput(path=path, calibration=cal, noise=noise, source=data.get("source") or {},
-                       magnetometer=read_mag(data, path))
+                       magnetometer=read_mag(data, path), quality=data.get("quality"))
 
 
 def _read_noise(path: Path) -> dict:
