@@ -17,6 +17,7 @@ import pytest
 
 from imucal.cli.main import main
 from imucal.inuse.check import Stored
+from imucal.inuse.estimate import fit_acc
 from imucal.inuse.everyday import Drift, make_everyday
 from imucal.inuse.refresh import refresh
 from imucal.io.exports import c_runtime
@@ -39,15 +40,15 @@ def calibration(truth) -> Calibration:
                        acc_unit_raw="g", acc_unit="g", g=1.0, gyro_unit_raw="rad/s")
 
 
-def build(cal: Calibration, d: Path) -> Path:
+def build(cal: Calibration, d: Path, extra: tuple[str, ...] = (), name: str = "driver") -> Path:
     inp = ExportInput(path=d / "calib.json", calibration=cal, source={},
                       noise={"accelerometer": {"white_noise_density": [DENSITY] * 3}},
                       quality={"static_norm_rms_mg": {"cross_validated": STORED.static_norm_mg}})
     for path, text in c_runtime.export(inp, d, None).files:
         path.write_text(text)
     (d / "driver.c").write_text(c_runtime.DRIVER_C)
-    exe = d / "driver"
-    subprocess.run([CC, *FLAGS, "-o", str(exe), str(d / "driver.c"),
+    exe = d / name
+    subprocess.run([CC, *FLAGS, *extra, "-o", str(exe), str(d / "driver.c"),
                     str(d / c_runtime.SOURCE), "-lm"], check=True, capture_output=True)
     return exe
 
@@ -185,6 +186,26 @@ def test_the_refreshed_accelerometer_is_pythons_and_the_truth(case):
     # nothing moved before 6 moments
     first = c["out"][: got[min(5, len(got) - 1), 1] + 50]
     assert np.all(first[:, 9:12] == np.float32(truth.stored_acc.b))
+
+
+def test_past_the_moments_held_the_fit_is_on_the_last_ones(case, tmp_path):
+    """IMUCAL_RT_MAX_MOMENTS = 8: the device refits on the last 8 moments, which is
+    estimate.fit_acc on those 8 (the Python fits them all)."""
+    session, truth, c, r, _ = case
+    if truth.activity != "desk":
+        pytest.skip("once is enough (desk: 58 moments)")
+    cal = calibration(truth)
+    exe = build(cal, tmp_path, ("-DIMUCAL_RT_MAX_MOMENTS=8",), "driver8")
+    few = run(exe, session, tmp_path)
+    assert few["sizeof"] == c_runtime.state_bytes(c_runtime.DEFAULT_MAX_RATE_HZ, 8) == 5464
+    m = r.check.moments
+    last = dataclasses.replace(m, **{f: getattr(m, f)[-8:] for f in (
+        "blocks", "times", "n", "raw_mean", "cal_mean", "norm_var", "rate", "rate_se")})
+    fit = fit_acc(truth.stored_acc, last, 1.0, STORED.static_norm_mg * 1e-3, "g")
+    assert ["none", "bias", "bias and scale"][few["acc_choice"][0]] == fit.choice
+    np.testing.assert_allclose(few["acc_b"], fit.model.b, rtol=0, atol=2e-7)
+    np.testing.assert_allclose(few["acc_k"], fit.model.K, rtol=0, atol=5e-7)
+    assert np.abs(few["acc_b"] - r.acc.b).max() > 1e-6  # not the fit on all 58
 
 
 def test_the_gyroscope_bias_after_each_moment_once_3_s_are_seen(case):
