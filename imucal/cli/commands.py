@@ -303,8 +303,8 @@ def _mag_output(out: str | Path, signals) -> str:
 
 
 def _activity(value: str | None) -> str | None:
-    if value is not None and value not in ("walk", "jumps", "desk"):
-        raise typer.BadParameter(f"expected walk, jumps or desk, got {value!r}")
+    if value is not None and value not in ("walk", "jumps", "desk", "flight"):
+        raise typer.BadParameter(f"expected walk, jumps, desk or flight, got {value!r}")
     return value
 
 
@@ -378,9 +378,10 @@ def synth(
         "--mag-disturbance", metavar="T0 T1", show_default=False,
         help="A magnet carried with the sensor from T0 to T1 s (0.3 of the field).")] = None,
     activity: Annotated[str | None, typer.Option(
-        "--activity", metavar="walk|jumps|desk", callback=_activity, show_default=False,
+        "--activity", metavar="walk|jumps|desk|flight", callback=_activity, show_default=False,
         help="Everyday use instead of a calibration session (rare still moments, sway, taps; "
-             "method.md §10), with the calibration before the drift written beside it.")] = None,
+             "a flight: rests before take-off, motors' vibration; method.md §10), with the "
+             "calibration before the drift written beside it.")] = None,
     drift_gyro_bias: Annotated[str | None, typer.Option(
         "--drift-gyro-bias", metavar="X,Y,Z", show_default=False,
         help="--activity: the gyroscope bias's change since calibration, deg/s.")] = None,

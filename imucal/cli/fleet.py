@@ -90,10 +90,10 @@ def batch(
     patterns: Annotated[list[str], typer.Argument(
         metavar="GLOB...", show_default=False,
         help="Session files or quoted glob patterns ('sessions/**/*.mat').")],
-    out_dir: Annotated[Path, typer.Option(
+    out_dir: Annotated[Path | None, typer.Option(
         "--out-dir", metavar="DIR", show_default=False,
         help="Where each session's calib.json (DIR/DEVICE/SESSION.calib.json) and "
-             "summary.parquet go.")],
+             "summary.parquet go (required unless --check).")] = None,
     scheduler: Annotated[str | None, typer.Option(
         "--scheduler", metavar="tcp://HOST:PORT", show_default=False,
         callback=_scheduler_address,
@@ -117,6 +117,12 @@ def batch(
         "--store", metavar="DIR", show_default=False,
         help="Also add each calibration to this calibration store (see 'imucal store').")
     ] = None,
+    check_store: Annotated[Path | None, typer.Option(
+        "--check", metavar="CALIB_STORE", show_default=False,
+        help="Instead of calibrating: check each recording (imucal check) against its "
+             "device's latest calibration in this store; a table per device.")] = None,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="With --check: print the figures as JSON.")] = False,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> int:
@@ -126,7 +132,22 @@ def batch(
     (sha256), settings and spec are unchanged. Each session's verdict (good, usable with
     caveats, not usable) is a column of the table. Exit 1 when a session failed, broke the spec
     or is not usable.
+
+    With --check CALIB_STORE: each recording of ordinary use is checked against its device's
+    latest stored calibration (method.md §10), a device being drifted when one of its
+    recordings says so, else holds when one does, else cannot tell. Exit 1 when a device
+    drifted or a recording failed (bad file, no calibration stored for its device), else 2
+    when a device cannot tell, else 0.
     """
+    if check_store is not None:
+        return _batch_check(patterns, check_store, options, scheduler=scheduler,
+                            workers=workers, device_from=device_from, as_json=as_json,
+                            verbose=verbose, refused={"--out-dir": out_dir, "--spec": spec,
+                                                      "--store": store, "--force": force})
+    if out_dir is None:
+        raise usage_error("--out-dir is needed (unless --check)", "'--out-dir'")
+    if as_json:
+        raise usage_error("--json goes with --check", "'--json'")
     gyro = options["gyro"]
     if gyro is not None and (Path(gyro).exists() or Path(gyro).suffix.lower() in _DATA_SUFFIXES):
         raise usage_error("--gyro names one file; in a batch each session file holds its "
@@ -153,6 +174,40 @@ def batch(
                        workers=workers, device_from=device_from, spec=limits, force=force,
                        progress=show, store=store)
     return _print_report(report, limits)
+
+
+def _batch_check(patterns: list[str], check_store: Path, options: dict[str, Any], *,
+                 scheduler: str | None, workers: int | None, device_from: str | None,
+                 as_json: bool, verbose: bool, refused: dict[str, Any]) -> int:
+    """``batch --check``: imucal.fleet.check on the cluster, a table or JSON."""
+    for option, value in refused.items():
+        if value:
+            raise usage_error(f"{option} calibrates; --check only checks", f"'{option}'")
+    if workers is not None and scheduler is not None:
+        raise usage_error("--workers sizes the LocalCluster; an existing cluster (--scheduler) "
+                          "is used as it is", "'--workers'")
+    from imucal.fleet.batch import require_dask
+    from imucal.fleet.check import check_lines, run_check
+    from imucal.inuse.limits import ACC_LIMIT_MG, GYRO_LIMIT_DEG_S
+
+    require_dask()
+    load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
+    if load_kw["gyro_path"] is not None:
+        raise usage_error("--gyro names one file; in a batch each session file holds its "
+                          "gyroscope", "'--gyro'")
+    files = _expand(patterns)
+    tty = _isatty(sys.stderr)
+    show = functools.partial(_progress_line, tty=tty) if verbose or tty else None
+    report = run_check(files, check_store, load_kw=load_kw, acc_limit_mg=ACC_LIMIT_MG,
+                       gyro_limit_deg_s=GYRO_LIMIT_DEG_S, scheduler=scheduler,
+                       workers=workers, device_from=device_from, progress=show)
+    if as_json:
+        import json
+
+        print(json.dumps(report.to_dict(), indent=2, allow_nan=False, default=str))
+    else:
+        print("\n".join(check_lines(report)))
+    return report.exit_code
 
 
 def _print_report(report, limits) -> int:

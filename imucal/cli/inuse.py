@@ -133,6 +133,13 @@ def refresh_cmd(
     recording: RecordingArg,
     out: Annotated[str, typer.Option("--out", "-o", metavar="NEW.json", show_default=False,
                                      help="The refreshed calibration file to write.")],
+    store: Annotated[Path | None, typer.Option(
+        "--store", metavar="DIR", show_default=False,
+        help="Also add it to this calibration store as a new version of its device (the "
+             "calibration's own device, or --device); both written or neither.")] = None,
+    device: Annotated[str | None, typer.Option(
+        "--device", metavar="ID", show_default=False,
+        help="With --store: the device's id [default: the calibration's].")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> int:
@@ -142,6 +149,10 @@ def refresh_cmd(
 
     Exit codes: 0 written; 2 the recording determines nothing (nothing written); 1 bad input.
     """
+    if device is not None and store is None:
+        from imucal.cli.options import usage_error
+
+        raise usage_error("--device names the device in the store: give --store", "'--device'")
     check_outputs([out], [calibration, recording])
     progress = Progress(verbose)
     cal, stored, data, session, notes = _load(calibration, recording, options, progress)
@@ -161,7 +172,14 @@ def refresh_cmd(
                          recording=session.source, recording_sha256=session.sha256
                          or file_sha256(recording))
     with progress.stage(f"writing {out}"):
-        write_refreshed(out, new)
+        if store is None:
+            write_refreshed(out, new)
+        else:  # imucal.fleet.refresh_store: --out and the store's new version, both or neither
+            from imucal.fleet.refresh_store import write_with_store
+
+            version = write_with_store(out, new, store=store, device=device,
+                                       calibration=calibration, recording=recording,
+                                       inputs=[calibration, recording])
     for c in result.changed:
         lines.append(f"changed         {c.sensor} {c.parameter}: {c.stored:.6g} -> "
                      f"{c.value:.6g} ({c.change:+.3g} {c.unit}, std error {c.std_error:.2g})")
@@ -172,6 +190,9 @@ def refresh_cmd(
                      f"{result.check.moments.count} moments")
     lines += [f"  - {n}" for n in notes]
     lines.append(f"wrote {out}")
+    if store is not None:
+        lines.append(f"{'already stored as' if version.already else 'stored'} {version.path} "
+                     f"(device {version.device}, the recording's time)")
     print("\n".join(lines))
     return 0
 

@@ -24,7 +24,7 @@ from imucal.numerics import quaternion as quat
 from imucal.session import Session
 from imucal.synth import make_motion, random_acc_model, random_gyro_model
 
-ACTIVITIES = ("walk", "jumps", "desk")
+ACTIVITIES = ("walk", "jumps", "desk", "flight")  # flight: imucal.inuse.flight
 H = 1e-4  # s: the half step of the body rate's difference (O(h^2): 1e-8 of the rate)
 TAP_S = 0.02  # a tap's pulse, s
 EDGE_S = 1.0  # an activity's ramp in and out at each end of a carry, s
@@ -93,15 +93,21 @@ def make_everyday(activity: str = "walk", minutes: float = 10.0, seed: int = 0,
                   gyro_noise: float = 0.003, sway_deg: float = 0.25, tapping: float = 0.2,
                   stored_acc: SensorModel | None = None, stored_gyro: SensorModel | None = None,
                   ) -> tuple[Session, EverydayTruth]:
-    """A recording of ``minutes`` of ``activity`` ("walk", "jumps", "desk") and its truth.
+    """A recording of ``minutes`` of ``activity`` ("walk", "jumps", "desk", "flight") and its
+    truth.
 
     ``tapping`` is the fraction of the hand-held rests spent being tapped instead (a burst of
     taps 0.3-1.2 s apart: the device is still but for the taps, and no moment may come of it);
     on the desk, the rests are cut by typing (1-4 s of 30 Hz vibration, 20-40 mg) and a tap or
     two. ``sway_deg`` is the amplitude of the sway's tilt about each horizontal axis."""
-    if activity not in _PLAN:
+    if activity not in ACTIVITIES:
         raise ValueError(f"activity must be one of {ACTIVITIES}, got {activity!r}")
     rng = np.random.default_rng([seed, ACTIVITIES.index(activity)])
+    if activity == "flight":  # a vehicle: its own module (imported here: it imports this one)
+        from imucal.inuse.flight import make_flight
+
+        return make_flight(minutes, rng, drift or Drift(), rate, acc_noise, gyro_noise,
+                           stored_acc, stored_gyro, seed)
     hold, carry, held = _PLAN[activity]
     poses = max(2, int(round((minutes * 60.0 + carry) / (hold + carry))))
     motion = make_motion(rng, poses, hold, carry, hold)

@@ -40,6 +40,7 @@ class ExportInput:
     magnetometer: MagModel | None = None  # its ``magnetometer`` section, when calibrated
     # its other triads and temperature models (method.md §11, §12); None: it has neither
     extras: Extras | None = None
+    quality: dict | None = None  # its ``quality`` key (the C runtime's stored still-norm error)
 
     @property
     def has_gyro(self) -> bool:
@@ -100,7 +101,8 @@ def read_export_input(path: str | Path, noise_path: str | Path | None = None) ->
     if noise_path is not None:
         noise = _read_noise(Path(noise_path))
     return ExportInput(path=path, calibration=cal, noise=noise, source=data.get("source") or {},
-                       magnetometer=read_mag(data, path), extras=read_extras(data, path, cal))
+                       magnetometer=read_mag(data, path), extras=read_extras(data, path, cal),
+                       quality=data.get("quality"))
 
 
 def _read_noise(path: Path) -> dict:
