@@ -59,7 +59,7 @@ from imucal.inuse.trace import moment_norm_mg, running_norm, running_rate
 from imucal.io.atomic import atomic_path
 
 from . import paths as P
-from .columns import AFTER, BEFORE, CALIBRATED, GREY, STILL, XYZ, rgba, send_scalars
+from .columns import AFTER, BEFORE, CALIBRATED, GREY, MEASURED, STILL, XYZ, rgba, send_scalars
 from .columns import style_lines as _lines
 from .columns import style_points as _points
 from .decimate import axes_cut
@@ -171,7 +171,7 @@ def _norm(check: Check, g: float, rec: rr.RecordingStream, rows: dict[str, int],
                               (P.INUSE_NORM_LIMIT, acc.limit, "limit")):
         if value is not None:
             rows[path] = send_scalars(rec, path, ends, np.full(2, value))
-            _lines(rec, path, [f"{name} {value:.2f} mg"], [GREY if path ==
+            _lines(rec, path, [f"{name} {value:.2f} mg"], [MEASURED if path ==
                                                           P.INUSE_NORM_EXPECTED else BEFORE])
 
 
@@ -286,19 +286,19 @@ def check_blueprint(check: Check, refresh: Refresh | None = None,
     over the recording, the moments as a lane, the note) and, for a refresh, the Refresh tab
     (each parameter's change with its 95 % bar, the note)."""
     acc, gyro = check.parts
-    band = "" if acc.limit is None else f", limit {acc.limit:.2f} red, expected grey"
+    band = "" if acc.limit is None else f", limit {acc.limit:.2f} red, expected green"
     rows: list = [
         rrb.Horizontal(_ts(f"|a| with the stored calibration ({acc_unit})", P.INUSE_ACC_NORM),
                        *([_ts("|w| calibrated (deg/s)", P.INUSE_GYRO_NORM)]
                          if gyro.limit is not None else [])),
-        _ts("Still-norm error per moment (mg, red; refreshed blue) and its RMS so far with "
-            f"95 % band{band}", P.INUSE_NORM_MOMENT, P.INUSE_NORM_REFRESHED, P.INUSE_NORM_RMS,
-            P.INUSE_NORM_EXPECTED, P.INUSE_NORM_LIMIT)]
+        _ts("Still-norm error per moment (mg, red ●; refreshed blue ◆) and its RMS so far "
+            f"(blue) with 95 % band (grey){band}", P.INUSE_NORM_MOMENT, P.INUSE_NORM_REFRESHED,
+            P.INUSE_NORM_RMS, P.INUSE_NORM_EXPECTED, P.INUSE_NORM_LIMIT)]
     shares = [1.0, 1.4]
     if gyro.limit is not None and check.moments.rate is not None:
         rows.append(rrb.Horizontal(*[_ts(
-            f"Gyroscope {a}: rate at rest per moment and pooled so far (deg/s), ±{gyro.limit:g} "
-            "red", P.inuse_gyro(a, "moment_deg_s"), P.inuse_gyro(a, "pooled_deg_s"),
+            f"Gyro {a}: rate at rest (deg/s), pooled blue, ±{gyro.limit:g} red",
+            P.inuse_gyro(a, "moment_deg_s"), P.inuse_gyro(a, "pooled_deg_s"),
             P.inuse_gyro(a, "band_deg_s")) for a in AXES]))
         shares.append(1.4)
     rows.append(rrb.StateTimelineView(name="Still moments", origin="/",
@@ -323,8 +323,10 @@ def check_blueprint(check: Check, refresh: Refresh | None = None,
         tabs.append(rrb.Horizontal(rrb.Vertical(*plots), note, column_shares=[3, 2],
                                    name="Refresh") if plots else rrb.Horizontal(
                                        note, name="Refresh"))
+    # One tab alone is no Tabs container: the viewer drops such a container and lays out
+    # every entity by itself instead (measured, Rerun 0.41).
     return rrb.Blueprint(
-        rrb.Tabs(*tabs, active_tab=0),
+        rrb.Tabs(*tabs, active_tab=0) if len(tabs) > 1 else tabs[0],
         rrb.TimePanel(timeline=P.TIME, state="collapsed", play_state="paused"),
         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
         auto_layout=False, auto_views=False)

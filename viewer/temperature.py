@@ -76,7 +76,7 @@ def boxes(result: Result | None) -> dict[str, Box]:
     out = {}
     for col in plots(result):
         for path in col:
-            out[path] = Box.fitting(width, TAB_H / len(col) - 30, left=72, right=92)
+            out[path] = Box.fitting(width, TAB_H / len(col) - 30, left=60, right=92)
     return out
 
 
@@ -109,9 +109,8 @@ def _axis_x(fit: BiasPolynomial) -> Axis:
     return Axis(float(g[0]), float(g[-1]), xa.ticks, [f"{t} °C" for t in xa.labels])
 
 
-def _axis_y(values: list[np.ndarray], unit: str) -> Axis:
-    ya = linear_axis(np.concatenate([np.ravel(v) for v in values]), pad=0.08)
-    return Axis(ya.lo, ya.hi, ya.ticks, [f"{t} {unit}" for t in ya.labels])
+def _axis_y(values: list[np.ndarray]) -> Axis:
+    return linear_axis(np.concatenate([np.ravel(v) for v in values]), pad=0.08)  # unit: title
 
 
 def _marks(fit: BiasPolynomial) -> list[Mark]:
@@ -160,21 +159,21 @@ def _log_accelerometer(fit: BiasPolynomial, unit: str | None, box: dict[str, Box
     path = P.temp_plot("accelerometer", "bias")
     series = [Series(f"bias_{a}", f"b{a}(T) − b0{a}", XYZ[i], grid, db[:, i], size=0.6,
                      values={"degC": grid, shown: db[:, i]}) for i, a in enumerate(AXES)]
-    log_plot(rec, path, box[path], xa, _axis_y([db], shown), series, _marks(fit))
+    log_plot(rec, path, box[path], xa, _axis_y([db]), series, _marks(fit))
     if fit.before_mg is not None and fit.temps is not None:
         path = P.temp_plot("accelerometer", "norm")
         series = _leg_series(fit, np.asarray(fit.before_mg), "constant_", "mg")
         after = np.asarray(fit.residuals, float)
         series.append(Series("with_polynomial", "with b(T)", MEASURED, fit.temps, after,
                              line=False, size=2.0, values={"degC": fit.temps, "mg": after}))
-        log_plot(rec, path, box[path], xa, _axis_y([fit.before_mg, after], "mg"), series,
+        log_plot(rec, path, box[path], xa, _axis_y([fit.before_mg, after]), series,
                  _marks(fit))
     if fit.scale_slope is not None and fit.model is not None:
         path = P.temp_plot("accelerometer", "scale")
         ppm = (fit.scale_at(grid) / fit.model.K[None, :] - 1.0) * 1e6
         series = [Series(f"scale_{a}", f"K{a}(T)/K{a} − 1", XYZ[i], grid, ppm[:, i], size=0.6,
                          values={"degC": grid, "ppm": ppm[:, i]}) for i, a in enumerate(AXES)]
-        log_plot(rec, path, box[path], xa, _axis_y([ppm], "ppm"), series, _marks(fit))
+        log_plot(rec, path, box[path], xa, _axis_y([ppm]), series, _marks(fit))
 
 
 def _log_gyroscope(fit: BiasPolynomial, unit: str | None, box: dict[str, Box],
@@ -191,7 +190,7 @@ def _log_gyroscope(fit: BiasPolynomial, unit: str | None, box: dict[str, Box],
         series.append(Series("fit", f"order {fit.order}", XYZ[i], grid, curve[:, i], size=0.6,
                              values={"degC": grid, shown: curve[:, i]}))
         ys = [curve[:, i]] + ([] if data is None else [data[:, i]])
-        log_plot(rec, path, box[path], xa, _axis_y(ys, shown), series, _marks(fit))
+        log_plot(rec, path, box[path], xa, _axis_y(ys), series, _marks(fit))
 
 
 def _log_time(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
@@ -255,7 +254,7 @@ def temperature_tab(result: Result, time_axis, lanes) -> rrb.Horizontal:
                 visual_bounds=rrb.VisualBounds2D(x_range=box[p].bounds()[0],
                                                  y_range=box[p].bounds()[1])) for p in col]))
     when = rrb.TimeSeriesView(
-        name="Temperature (°C) over time: still blocks heating red, cooling blue, steady grey",
+        name="Temperature (°C); still blocks heating red, cooling blue",
         origin="/", contents=[P.TEMP_SERIES] + [P.temp_blocks(n) for n, _, _ in LEGS],
         axis_x=time_axis(), plot_legend=rrb.PlotLegend(visible=False))
     cols.append(rrb.Vertical(when, lanes(), rrb.TextDocumentView(name="Temperature",

@@ -24,15 +24,16 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from . import paths as P
-from .columns import AFTER, BEFORE, CALIBRATED, RAW, nan_if_none, send_scalars, style_points
+from .columns import AFTER, BEFORE, CALIBRATED, nan_if_none, send_scalars, style_points
 
 if TYPE_CHECKING:
     from imucal.result import Result, Triad
     from imucal.stages.triads import RotationFit
 
+OWN_FRAME = 0xEDC948FF  # yellow: apart from the red "before" and the blue "after"
 # (what, legend name, colour, marker) of each per-block series, in drawing order
 SERIES = (("before_mg", "before calibration", BEFORE, "circle"),
-          ("unrotated_mg", "calibrated, own frame", RAW, "square"),
+          ("unrotated_mg", "calibrated, own frame", OWN_FRAME, "square"),
           ("after_mg", "calibrated and rotated", CALIBRATED, "diamond"),
           ("held_out_mg", "rotated, block held out", AFTER, "circle"))
 
@@ -151,15 +152,18 @@ def triads_note(result: Result) -> str:
                       "the reference's frame", "", *lines] + (["", *said] if said else []))
 
 
-def triads_title(result: Result | None, k: int) -> str:
-    """The per-block plot's title for the ``k``-th other triad: its name and agreement."""
-    tri = None if result is None else result.triads[k]
-    if tri is None or tri.agreement is None:
-        return f"Triad {triad_number(k)}: gravity difference per still block (mg)"
+def triads_titles(result: Result, k: int) -> tuple[str, str]:
+    """The ``k``-th other triad's two per-block plots' titles (every stage; after alone):
+    its name and agreement."""
+    tri = result.triads[k]
     a = tri.agreement
+    if a is None:
+        return (f"{tri.name}: no rotation estimated (too few shared still blocks)",
+                f"{tri.name}: calibrated and rotated")
     return (f"{tri.name} vs reference, |Δ gravity| per block (mg): before red "
-            f"{a.before_rms_mg:.3g}, own frame orange, rotated blue, held out "
-            f"{a.held_out_rms_mg:.3g} RMS")
+            f"({a.before_rms_mg:.3g} RMS), calibrated in its own frame yellow, rotated blue",
+            f"{tri.name}, calibrated and rotated (mg): in sample ◆, block held out ● "
+            f"({a.held_out_rms_mg:.3g} RMS)")
 
 
 def triads_tab(result: Result, time_axis, lanes) -> rrb.Horizontal:
@@ -168,12 +172,14 @@ def triads_tab(result: Result, time_axis, lanes) -> rrb.Horizontal:
     views = []
     for k in range(len(result.triads)):
         i = triad_number(k)
-        views.append(rrb.TimeSeriesView(
-            name=triads_title(result, k), origin="/",
-            contents=[P.triad(i, what) for what, *_ in SERIES], axis_x=time_axis(),
-            plot_legend=rrb.PlotLegend(visible=False)))
+        every, after = triads_titles(result, k)
+        views.append(rrb.Vertical(*[rrb.TimeSeriesView(
+            name=name, origin="/", contents=[P.triad(i, what) for what in whats],
+            axis_x=time_axis(), plot_legend=rrb.PlotLegend(visible=False))
+            for name, whats in ((every, [w for w, *_ in SERIES]),
+                                (after, ["after_mg", "held_out_mg"]))]))
     n = len(views)
     return rrb.Horizontal(
-        rrb.Vertical(*views, lanes(), row_shares=[1.0] * n + [0.2 * n + 0.1]),
+        rrb.Vertical(*views, lanes(), row_shares=[1.0] * n + [0.15 * n + 0.05]),
         rrb.TextDocumentView(name="Triads", origin=P.TRIADS_NOTE),
         column_shares=[3, 2], name="Triads")
