@@ -226,3 +226,26 @@ def test_one_triad_records_what_it_did_before(tmp_path, monkeypatch):
     assert rb.blueprint_containers(now) == rb.blueprint_containers(before)
     assert rb.blueprint_views(now) == rb.blueprint_views(before)
     assert not [e for e in rb.entities(now) if e.startswith(("triads", "temperature"))]
+
+
+def test_scale_against_temperature_where_the_data_determine_it(tmp_path):
+    """Scales that change by 300, -200, 100 ppm per deg C: the tab's third accelerometer plot
+    draws K(T)/K - 1 as the fit has it, about the truth's slope."""
+    profile = TemperatureProfile(acc_scale=(3e-4, -2e-4, 1e-4))
+    session, _ = make_session(poses=30, seed=1, temperature=profile)
+    result = calibrate_temperature(imucal.calibrate(session))
+    fit = next(f for f in result.temperature if f.sensor == "accelerometer")
+    assert fit.scale_slope is not None
+    rrd = tmp_path / "scale.rrd"
+    save_recording(result, rrd)
+    base = P.temp_plot("accelerometer", "scale")
+    for i, a in enumerate("xyz"):
+        v = rb.values(rrd, P.series(base, f"scale_{a}"))
+        temps, ppm = np.asarray(v["degC"]), np.asarray(v["ppm"])
+        np.testing.assert_allclose(ppm, (fit.scale_at(temps)[:, i] / fit.model.K[i] - 1) * 1e6,
+                                   rtol=1e-12)
+        inside = (temps > fit.span[0]) & (temps < fit.span[1])
+        slope = np.polyfit(temps[inside], ppm[inside], 1)[0]
+        assert slope == pytest.approx(profile.acc_scale[i] * 1e6, abs=40)  # ppm per deg C
+    views = [v.name for v in blueprint(result).root_container.contents[-2].contents[0].contents]
+    assert views[-1] == "Accelerometer scale K(T)/K − 1 (ppm)"
