@@ -627,7 +627,7 @@ def calibrate_temperature(result: Result) -> Result:
         means = interval_means(session.t_gyro, lambda a, b: session.gyro[a:b],
                                result.block_times, 1.0).means
         fits.append(fit_bias_polynomial(block_t, means - gyro_fit.model.b, gyro_fit.model.b,
-                                        "gyroscope"))
+                                        "gyroscope", legs))
     unit = ("deg/s", 180 / np.pi) if session.gyro_unit == "rad/s" else ("counts", 1.0)
     out = []
     for f in fits:
@@ -674,7 +674,7 @@ def calibrate_same_device(results: Sequence[Result]) -> Result:
                                       first.calibration.g, np.concatenate(legs))]
     if gyro_fit is not None and len(gyro) == len(results):
         fits.append(fit_bias_polynomial(block_t, np.concatenate(gyro) - gyro_fit.model.b,
-                                        gyro_fit.model.b, "gyroscope"))
+                                        gyro_fit.model.b, "gyroscope", np.concatenate(legs)))
     levels = ", ".join(f"{float(np.nanmean(t)):.1f}" for t in temps)
     said = (f"from {len(results)} sessions of one device at {levels} deg C (their still poses "
             "pooled, each at its own temperature)",)

@@ -18,6 +18,11 @@ Optimiser       cost and parameters at each accepted step, one column per sensor
 Magnetometer    (a calibrated magnetometer only) raw field with the fitted ellipsoid | calibrated
                 field on its sphere, over the norm |m|/F − 1 and the dip per still block
                 against time, still blocks and disturbed parts as lanes | the note
+Triads          (other triads only) per triad, each shared block's gravity difference (mg)
+                before, calibrated, rotated, held out, over the lanes | figures side by side
+Temperature     (a bias in temperature only) accelerometer bias, block norm error (and scale)
+                vs temperature | gyroscope bias per axis vs temperature | temperature over
+                time, lanes, the note
 Summary         the markdown summary, full size
 =============== =================================================================================
 
@@ -43,6 +48,8 @@ from .magnetometer import mag_titles
 from .optimiser import WHATS, cost_title
 from .ranges import robust_range
 from .signal_rows import SignalRows, signal_rows
+from .temperature import temperature_tab
+from .triads import triads_tab
 
 __all__ = ["TAB_NAMES", "blueprint", "robust_range"]
 
@@ -269,6 +276,10 @@ def blueprint(result: Result | None = None, active_tab: int | str = 0,
     tabs.append(_optimiser(result, gyro))
     if result is not None and result.magnetometer is not None:
         tabs.append(_magnetometer(result))
+    if result is not None and result.triads:
+        tabs.append(triads_tab(result, _whole_axis, _lanes))
+    if result is not None and result.temperature:
+        tabs.append(temperature_tab(result, _whole_axis, _lanes))
     tabs.append(rrb.TextDocumentView(name="Summary", origin=P.SUMMARY))
 
     if isinstance(active_tab, str):  # by name: tabs without data are left out

@@ -136,3 +136,60 @@ MAG_DIP_LEFT_OUT = "magnetometer_dip/left_out_deg"  # blocks not used for R_am a
 MAG_DIP_FIT = "magnetometer_dip/fitted_deg"  # MagFit.dip_deg, 2 rows (a line)
 MAG_INFO = "magnetometer/info"  # static AnyValues: the fit's figures (MagQuality's)
 MAG_NOTE = "magnetometer/note"  # static TextDocument (markdown): coverage, disturbances
+
+# The Triads tab (:mod:`viewer.triads`): only for a session with other triads (``Result.triads``,
+# method.md §11); triad ``i`` numbered from 2 (the reference is 1), its name in its info.
+TRIADS_NOTE = "triads/note"  # static TextDocument (markdown): each triad's figures side by side
+
+
+def triad(i: int, what: str) -> str:
+    """Triad ``i``'s entity ``what``: ``before_mg`` | ``unrotated_mg`` | ``held_out_mg`` |
+    ``after_mg`` (Scalars per shared still block at its middle) or ``info`` (static
+    AnyValues: the rotation, its standard errors, the figures)."""
+    return f"triads/triad_{i}/{what}"
+
+
+# The Temperature tab (:mod:`viewer.temperature`): only with a bias in temperature
+# (``Result.temperature``, method.md §12). 2D plots against temperature (deg C).
+TEMPERATURE = "temperature"
+TEMP_NOTE = "temperature/note"  # static TextDocument (markdown): orders, spans, hysteresis
+TEMP_SERIES = "temperature_time/degC"  # Scalars: the temperature stream over time
+
+
+def temp_blocks(leg: str) -> str:
+    """Each still block's temperature at its middle, on its ``leg``: heating | cooling |
+    steady (Scalars)."""
+    return f"temperature_time/{leg}_degC"
+
+
+def temp_plot(sensor: str, what: str) -> str:
+    """A 2D plot against temperature: ``sensor`` accelerometer | gyroscope, ``what`` bias
+    (the accelerometer's curves), norm (its blocks' |a|/g - 1), scale, or bias_x|y|z (the
+    gyroscope's points and curve per axis)."""
+    return f"{TEMPERATURE}/{sensor}_{what}"
+
+
+# ``imucal check`` / ``imucal refresh`` recordings (:mod:`viewer.inuse`, method.md §10)
+INUSE_ACC_NORM = "inuse/signals/acc_norm"  # Scalars |a| calibrated with the stored model
+INUSE_GYRO_NORM = "inuse/signals/gyro_norm_deg_s"  # Scalars |w| calibrated, deg/s
+INUSE_MOMENTS = "inuse/moments"  # StateChange "still" / reset per moment
+INUSE_NORM_MOMENT = "inuse_norm/moment_mg"  # Scalars M9 e_k per moment, mg
+INUSE_NORM_REFRESHED = "inuse_norm/refreshed_mg"  # ... with the refreshed model
+INUSE_NORM_RMS = "inuse_norm/rms_mg"  # Scalars [RMS, low, high] over the moments so far
+INUSE_NORM_EXPECTED = "inuse_norm/expected_mg"  # 2 rows: the stored calibration's expectation
+INUSE_NORM_LIMIT = "inuse_norm/limit_mg"  # 2 rows: the limit
+INUSE_CHECK = "inuse/check"  # static AnyValues: verdict, figures
+INUSE_REFRESH = "inuse/refresh"  # static AnyValues: parameters refreshed, kept
+INUSE_NOTE = "inuse/note"  # static TextDocument (markdown)
+
+
+def inuse_gyro(axis: str, what: str) -> str:
+    """The gyroscope's rate at rest about ``axis`` (x, y, z): ``moment_deg_s`` | ``pooled_deg_s``
+    | ``band_deg_s``."""
+    return f"inuse_gyro_{axis}/{what}"
+
+
+def refresh_plot(group: str) -> str:
+    """A 2D plot of refreshed parameters' changes: ``accelerometer_bias`` | ``accelerometer_scale``
+    | ``gyroscope_bias``."""
+    return f"refresh/{group}"

@@ -144,7 +144,10 @@ decimation. One module per tab maps its entities: :mod:`viewer.signals` (Overvie
 
 The gyroscope entities exist only for a session with a gyroscope; the L-curve and ``lambda``
 entities only when lambda was chosen by the L-curve (not fixed); the ``magnetometer*``
-entities only when the session's magnetometer was calibrated (``Result.magnetometer``).
+entities only when the session's magnetometer was calibrated (``Result.magnetometer``); the
+``triads*`` entities (:mod:`viewer.triads`) only with other triads (``Result.triads``), the
+``temperature*`` ones (:mod:`viewer.temperature`) only with a bias in temperature
+(``Result.temperature``): their tables are in those modules.
 """
 
 from __future__ import annotations
@@ -169,6 +172,8 @@ from .optimiser import log_iterations
 from .signal_rows import SignalRows, signal_rows
 from .signals import log_block_errors, log_detector, log_signals
 from .summary import log_results, summary_markdown
+from .temperature import log_temperature
+from .triads import log_triads
 
 if TYPE_CHECKING:
     from imucal.result import Result
@@ -196,6 +201,8 @@ def log_result(result: Result, rec: rr.RecordingStream, signals: SignalRows | No
     log_lcurves(result, rec, rows)
     log_iterations(result, rec, rows)
     log_magnetometer(result, rec, rows)
+    log_triads(result, rec, rows)  # nothing for one triad
+    log_temperature(result, rec, rows)  # nothing without a bias in temperature
     log_results(result, rec)
     return rows
 

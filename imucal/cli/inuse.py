@@ -22,7 +22,7 @@ from imucal.cli.options import (
     positive,
     shared_options,
 )
-from imucal.cli.outputs import Progress, check_inputs, check_outputs
+from imucal.cli.outputs import Progress, check_inputs, check_outputs, viewer_available
 
 
 def _limits() -> tuple[float, float]:
@@ -41,6 +41,20 @@ CalibArg = Annotated[Path, typer.Argument(metavar="CALIB.json", show_default=Fal
 RecordingArg = Annotated[Path, typer.Argument(
     metavar="RECORDING", show_default=False,
     help="A recording of ordinary use, in any format 'imucal calibrate' reads.")]
+RrdOpt = Annotated[str | None, typer.Option(
+    "--rrd", metavar="FILE.rrd", show_default=False,
+    help="Also save a Rerun recording: the still moments on the recording's timeline, each "
+         "figure over the recording against its stored value and band (and what refresh "
+         "changed).")]
+
+
+def _recording_saver(rrd: str | None):
+    """The viewer's writer for ``--rrd`` (a missing rerun-sdk is one line, before any work)."""
+    if rrd is None:
+        return None
+    with viewer_available():
+        from viewer.inuse import save_check_recording
+    return save_check_recording
 
 
 def _load(calibration: Path, recording: Path, options: dict[str, Any], progress: Progress):
@@ -80,6 +94,7 @@ def check_cmd(
         "--gyro-limit", metavar="DEG/S", callback=positive,
         help="The gyroscope drifted when an axis' rate at rest is shown beyond this.")
     ] = GYRO_LIMIT_DEG_S,
+    rrd: RrdOpt = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> int:
@@ -89,6 +104,10 @@ def check_cmd(
     Exit codes: 0 holds, 1 drifted (which parameters, by how much), 2 cannot tell (too few
     still moments or orientations); 1 also for bad input, with one line saying so.
     """
+    from imucal.io.atomic import Transaction
+
+    tx = Transaction([rrd], inputs=[calibration, recording])  # checked before any work
+    save = _recording_saver(rrd)
     progress = Progress(verbose)
     cal, stored, _, session, notes = _load(calibration, recording, options, progress)
     from imucal.inuse.check import check
@@ -96,6 +115,11 @@ def check_cmd(
     with progress.stage("finding still moments and judging"):
         result = check(cal, stored, session, acc_limit_mg=acc_limit,
                        gyro_limit_deg_s=gyro_limit)
+    if save is not None:
+        with tx, progress.stage(f"writing {rrd}"):
+            with tx.writing(rrd) as tmp, open(tmp, "wb") as f:
+                save(result, cal, session, f)
+            tx.commit()
     if as_json:
         import json
 
@@ -104,7 +128,8 @@ def check_cmd(
         data["notes"] = notes + data["notes"] + list(session.notes)
         print(json.dumps(data, indent=2, allow_nan=False))
     else:
-        print("\n".join(_check_lines(result, calibration, session, notes)))
+        print("\n".join(_check_lines(result, calibration, session, notes)
+                        + ([f"wrote {rrd}"] if save is not None else [])))
     return result.exit_code
 
 
@@ -140,6 +165,7 @@ def refresh_cmd(
     device: Annotated[str | None, typer.Option(
         "--device", metavar="ID", show_default=False,
         help="With --store: the device's id [default: the calibration's].")] = None,
+    rrd: RrdOpt = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> int:
@@ -148,12 +174,14 @@ def refresh_cmd(
     on both sides; every other parameter stays exactly as stored (method.md §10).
 
     Exit codes: 0 written; 2 the recording determines nothing (nothing written); 1 bad input.
+    NEW.json and the --rrd recording are written together or not at all.
     """
     if device is not None and store is None:
         from imucal.cli.options import usage_error
 
         raise usage_error("--device names the device in the store: give --store", "'--device'")
-    check_outputs([out], [calibration, recording])
+    check_outputs([out, rrd], [calibration, recording])  # checked before any work
+    save = _recording_saver(rrd)
     progress = Progress(verbose)
     cal, stored, data, session, notes = _load(calibration, recording, options, progress)
     from imucal.inuse.refresh import refresh
@@ -171,15 +199,30 @@ def refresh_cmd(
                          calibration_sha256=file_sha256(calibration),
                          recording=session.source, recording_sha256=session.sha256
                          or file_sha256(recording))
+
+    def write_rrd(tmp: Path) -> None:
+        with progress.stage(f"writing {rrd}"), open(tmp, "wb") as f:
+            save(result.check, cal, session, f, result)
+
+    write_also = write_rrd if save is not None else None
     with progress.stage(f"writing {out}"):
-        if store is None:
-            write_refreshed(out, new)
-        else:  # imucal.fleet.refresh_store: --out and the store's new version, both or neither
+        if store is None:  # NEW.json and the --rrd recording: both or neither
+            from imucal.io.atomic import Transaction
+
+            with Transaction([out, rrd], inputs=[calibration, recording]) as tx:
+                with tx.writing(out) as tmp:
+                    write_refreshed(tmp, new)
+                if write_also is not None:
+                    with tx.writing(rrd) as tmp:
+                        write_also(tmp)
+                tx.commit()
+        else:  # imucal.fleet.refresh_store: --out, --rrd and the store's new version, or none
             from imucal.fleet.refresh_store import write_with_store
 
             version = write_with_store(out, new, store=store, device=device,
                                        calibration=calibration, recording=recording,
-                                       inputs=[calibration, recording])
+                                       inputs=[calibration, recording], rrd=rrd,
+                                       write_rrd=write_also)
     for c in result.changed:
         lines.append(f"changed         {c.sensor} {c.parameter}: {c.stored:.6g} -> "
                      f"{c.value:.6g} ({c.change:+.3g} {c.unit}, std error {c.std_error:.2g})")
@@ -190,6 +233,7 @@ def refresh_cmd(
                      f"{result.check.moments.count} moments")
     lines += [f"  - {n}" for n in notes]
     lines.append(f"wrote {out}")
+    lines += [f"wrote {rrd}"] if save is not None else []
     if store is not None:
         lines.append(f"{'already stored as' if version.already else 'stored'} {version.path} "
                      f"(device {version.device}, the recording's time)")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -48,9 +49,11 @@ def device_of(doc: dict[str, Any], device: str | None, source: str) -> str:
 
 def write_with_store(out: str | os.PathLike, doc: dict[str, Any], *, store: Path,
                      device: str | None, calibration: Path, recording: Path,
-                     inputs: list) -> Version:
+                     inputs: list, rrd: str | os.PathLike | None = None,
+                     write_rrd: Callable[[Path], None] | None = None) -> Version:
     """Write ``doc`` (the refreshed calibration) to ``out`` and as a new version of its
-    device in ``store``, in one transaction: both are there afterwards, or neither changed."""
+    device in ``store`` (and, given ``write_rrd``, its recording to ``rrd``), in one
+    transaction: all are there afterwards, or none changed."""
     from imucal.io.atomic import Transaction
 
     dev = device_of(doc, device, str(calibration))
@@ -84,8 +87,12 @@ def write_with_store(out: str | os.PathLike, doc: dict[str, Any], *, store: Path
                  "refreshed_from": _stored_path(calibration, store)}
         stored = json.dumps(doc | {"store": block}, indent=2, allow_nan=False) + "\n"
         targets = [out] if there else [out, target]
+        targets += [rrd] if write_rrd is not None else []
         with Transaction(targets, inputs=inputs, exclusive=[] if there else [target]) as tx:
             tx.temp(out).write_text(text, encoding="utf-8")
+            if write_rrd is not None:
+                with tx.writing(rrd) as tmp:
+                    write_rrd(tmp)
             if not there:
                 _write_version(tx.temp(target), stored)
             tx.commit()

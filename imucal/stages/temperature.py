@@ -70,6 +70,20 @@ class BiasPolynomial:
     # (3,) the scales' relative change per deg C about T_0 where the data determine it
     # (cross-validated beside the bias's order); None: the scales held constant.
     scale_slope: np.ndarray | None = None
+    # (n,) each of those blocks' leg: +1 heating, -1 cooling, 0 neither (block_legs); None:
+    # not known.
+    legs: np.ndarray | None = None
+    # (n,) the accelerometer's still-norm error |u_k| / |g| - 1 of each of those blocks with the
+    # constant-bias fit (mg): what the polynomial was fitted to explain (M17's r_k).
+    before_mg: np.ndarray | None = None
+
+    def points(self) -> np.ndarray | None:
+        """(n, 3) the gyroscope's bias measured in each still block (raw unit): the data points
+        M16 was fitted to (``b(T_k)`` plus the block's residual); None for the accelerometer,
+        whose still blocks see its bias only along gravity."""
+        if self.residuals is None or self.temps is None or self.residuals.ndim != 2:
+            return None
+        return self.bias_at(self.temps) + self.residuals
 
     def calibrated(self, raw: np.ndarray, temp: np.ndarray) -> np.ndarray:
         """(N, 3) ``T K (raw - b(T))`` (M2 with M16's bias) of raw readings at temperatures
@@ -111,11 +125,12 @@ def _design(x: np.ndarray, order: int) -> np.ndarray:
 
 
 def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
-                        sensor: str) -> BiasPolynomial | None:
+                        sensor: str, legs: np.ndarray | None = None) -> BiasPolynomial | None:
     """M16 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
     at block temperatures ``temps`` (B,): the order by ``FOLDS``-fold cross-validation over
     the blocks (sorted by temperature, every ``FOLDS``-th block in one fold, so each fold spans
-    the range and none is extrapolated); None without two blocks of known temperature."""
+    the range and none is extrapolated); None without two blocks of known temperature.
+    ``legs`` (per block, :func:`block_legs`) is kept beside the data points."""
     ok = np.isfinite(temps) & np.all(np.isfinite(d), axis=1)
     temps, d = temps[ok], d[ok]
     b = len(temps)
@@ -158,7 +173,7 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
     return BiasPolynomial(sensor=sensor, b0=np.asarray(b0, float), t0=t0, span=(lo, hi),
                           order=order, coefs=coefs, cv_rms=cv, blocks=b, notes=tuple(notes),
                           residuals=d - _design(x, order) @ coef, used=np.flatnonzero(ok),
-                          temps=temps)
+                          temps=temps, legs=None if legs is None else np.asarray(legs)[ok])
 
 
 def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> np.ndarray:
@@ -271,7 +286,8 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                           span=(lo, hi), order=order, coefs=coefs, cv_rms=cv, blocks=b,
                           notes=tuple(notes), model=corrected, cov=cov,
                           residuals=(r + full @ sol) / g * 1e3, used=np.flatnonzero(ok),
-                          temps=temps, hysteresis=hyst, scale_slope=scale_slope)
+                          temps=temps, hysteresis=hyst, scale_slope=scale_slope, legs=legs,
+                          before_mg=r / g * 1e3)
 
 
 # A block is on a heating or cooling leg where the temperature moves faster than this.

@@ -149,6 +149,26 @@ class TriadAgreement:
     held_out_mg: np.ndarray  # (blocks,) |u_k - R_(-k) v_k| with block k held out, mg
     before_mg: np.ndarray  # (blocks,) |u_k - v_k| of the raw means in the nominal frame, mg
     used: np.ndarray  # (B,) True on the reference's blocks both triads saw
+    # (blocks, 3) the calibrated means M12 was fitted to, in units of |g|: the reference's
+    # (u) and the other triad's in its own frame (v); None where not kept.
+    u: np.ndarray | None = None
+    v: np.ndarray | None = None
+
+    @property
+    def after_mg(self) -> np.ndarray | None:
+        """(blocks,) ``|u_k - R v_k|`` in mg: each block's gravity in both triads after
+        calibration and the rotation (M12), in sample (:attr:`held_out_mg` holds block k out)."""
+        if self.u is None or self.v is None:
+            return None
+        return np.linalg.norm(self.u - self.v @ self.rotation.R.T, axis=1) * 1e3
+
+    @property
+    def unrotated_mg(self) -> np.ndarray | None:
+        """(blocks,) ``|u_k - v_k|`` in mg: calibrated, but each triad in its own frame (what
+        the rotation between them costs where it is left out)."""
+        if self.u is None or self.v is None:
+            return None
+        return np.linalg.norm(self.u - self.v, axis=1) * 1e3
 
     @property
     def held_out_rms_mg(self) -> float:
@@ -251,7 +271,8 @@ def triad_agreement(ref: BlockMeans, other: BlockMeans, ref_raw: np.ndarray,
         keep[k] = True
         held[k] = np.linalg.norm(u[k] - rk @ v[k]) * 1e3
     before = np.linalg.norm(ref_raw[used] - other_raw[used], axis=1) * 1e3
-    return TriadAgreement(rotation=fit, blocks=n, held_out_mg=held, before_mg=before, used=used)
+    return TriadAgreement(rotation=fit, blocks=n, held_out_mg=held, before_mg=before, used=used,
+                          u=u, v=v)
 
 
 # --- two clocks: the offset from the motion (method.md §11) -------------------------------------
