@@ -403,6 +403,40 @@ def synth(
         callback=_one_of("lines", "motioncal", "mavlink"),
         help="With --stream: lines of t,ax,ay,az,gx,gy,gz, MotionCal's Raw: lines (counts, no "
              "time: capture them with --rate), or MAVLink HIGHRES_IMU messages.")] = "lines",
+    acc_range: Annotated[float | None, typer.Option(
+        "--acc-range", metavar="G", callback=positive, show_default=False,
+        help="The accelerometer's range: it reads flat beyond it (a low-range part).")] = None,
+    shake: Annotated[float, typer.Option(
+        "--shake", metavar="G", callback=non_negative,
+        help="A shake of this peak linear acceleration during every turn, which every "
+             "accelerometer reads (past --acc-range: clipped).")] = 0.0,
+    acc2: Annotated[float | None, typer.Option(
+        "--acc2", metavar="G", callback=positive, show_default=False,
+        help="A second accelerometer (columns a2x, a2y, a2z) of this range, with its own "
+             "errors and noise, turned from the first; the truth in the truth file.")] = None,
+    acc2_rotation: Annotated[float, typer.Option(
+        "--acc2-rotation", metavar="DEG", callback=non_negative,
+        help="--acc2: its rotation from the first, about an axis drawn.")] = 3.0,
+    gyro2: Annotated[bool, typer.Option(
+        "--gyro2", help="--acc2: a gyroscope in its IMU too (g2x, g2y, g2z).")] = False,
+    temperature: Annotated[tuple[float, float] | None, typer.Option(
+        "--temperature", metavar="START END", show_default=False,
+        help="A temperature (column temp, deg C) from START to END over the session, which "
+             "moves the biases (method.md M16).")] = None,
+    temp_steps: Annotated[int, typer.Option(
+        "--temp-steps", metavar="N", callback=non_negative,
+        help="--temperature in N equal steps instead of a ramp.")] = 0,
+    temp_acc_bias: Annotated[str | None, typer.Option(
+        "--temp-acc-bias", metavar="X,Y,Z", show_default=False,
+        help="--temperature: the accelerometer bias's slope, mg per deg C [default: a 2nd-order "
+             "drift].")] = None,
+    temp_acc_scale: Annotated[str | None, typer.Option(
+        "--temp-acc-scale", metavar="X,Y,Z", show_default=False,
+        help="--temperature: the accelerometer scales' slope, ppm per deg C [default: 0].")] = None,
+    temp_gyro_bias: Annotated[str | None, typer.Option(
+        "--temp-gyro-bias", metavar="X,Y,Z", show_default=False,
+        help="--temperature: the gyroscope bias's slope, deg/s per deg C [default: a 2nd-order "
+             "drift].")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
@@ -435,6 +469,13 @@ def synth(
                                         or not 0 <= mag_disturbance[0] < mag_disturbance[1]):
         raise usage_error("--mag-disturbance T0 T1 needs --mag-rate and 0 <= T0 < T1",
                           "'--mag-disturbance'")
+    from imucal.cli.synth_triads import described, triad_kwargs
+
+    extra = triad_kwargs(csv=csv, counts="counts" in (acc_unit, gyro_unit), acc_range=acc_range,
+                         shake=shake, acc2=acc2, acc2_rotation=acc2_rotation, gyro2=gyro2,
+                         temperature=temperature, temp_steps=temp_steps,
+                         temp_acc_bias=temp_acc_bias, temp_acc_scale=temp_acc_scale,
+                         temp_gyro_bias=temp_gyro_bias)
     if minutes is not None:
         # duration ~ init_still + n * still + (n - 1) * move (the durations vary by +-20 %)
         poses = max(2, round((minutes * 60.0 - init_still + move) / (still + move)))
@@ -453,17 +494,19 @@ def synth(
                                 acc_noise=acc_noise, gyro_noise=gyro_noise, gyro_drift=drift,
                                 change_at=change_at, acc_unit=acc_unit, gyro_unit=gyro_unit,
                                 mag_rate=mag_rate, mag_field=mag_field, mag_dip_deg=mag_dip,
-                                mag_noise=mag_noise, mag_disturbance=mag_disturbance)
+                                mag_noise=mag_noise, mag_disturbance=mag_disturbance,
+                                **extra)
     with progress.stage(f"writing {out}"):
         if csv:
             stated = {"sample_rate_hz": acc_rate, "init_still_s": init_still}
             write_session_csv(out, sess, gyro_unit=gyro_unit,
                               preamble=stated if preamble else None, cut_last_line=cut_last_line,
-                              mag=mag_rate is not None)
+                              mag=mag_rate is not None, triads=bool(extra))
         else:
             write_session_mat(out, sess, gyro_unit=gyro_unit)
         write_truth(truth, tr)
     change = "" if tr.t_change is None else f", parameters change at {tr.t_change:.1f} s"
+    change += described(extra)
     if tr.mag is not None:
         change += (f", magnetometer {len(sess.others[0].t)} samples at "
                    f"{fmt_rate(mag_rate)} (gauss)")

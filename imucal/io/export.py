@@ -50,13 +50,16 @@ def write_session_mat(path: str | os.PathLike, session: Session, gyro_unit: str 
 
 def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str | None = None,
                       *, preamble: dict[str, float] | None = None,
-                      cut_last_line: bool = False, mag: bool = False) -> None:
+                      cut_last_line: bool = False, mag: bool = False,
+                      triads: bool = False) -> None:
     """A session as one CSV table, as a logger writes it: ``t,ax,ay,az,gx,gy,gz``; with a
     ``preamble`` of ``key,value`` lines above the header and no time column instead (the rate
     is in the preamble); ``cut_last_line`` ends the file in the middle of its last row, as a
     logger killed mid-write leaves it; ``mag``: the session's first magnetometer in columns
     ``mx,my,mz`` on the rows of its timestamps (each one an accelerometer timestamp), empty
-    on the others. Numbers are written to round-trip exactly."""
+    on the others; ``triads``: the other accelerometer and gyroscope triads (``a2x…``,
+    ``g2x…``, each on the accelerometer's timestamps) and a temperature stream (``temp``,
+    interpolated onto them). Numbers are written to round-trip exactly."""
     if not session.has_gyro or not np.array_equal(session.t_acc, session.t_gyro):
         raise ValueError("a CSV session needs the gyroscope at the accelerometer's timestamps")
     gyro = session.gyro
@@ -75,6 +78,17 @@ def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str 
         m[rows] = stream.values
         columns.append(m)
         names += ["mx", "my", "mz"]
+    if triads:
+        for stream in session.others:
+            if stream.kind in ("acc", "gyro"):
+                if not np.array_equal(stream.t, session.t_acc):
+                    raise ValueError(f"a CSV holds {stream.name} on the accelerometer's rows: "
+                                     "it needs the same timestamps")
+                columns.append(stream.values)
+                names += [f"{stream.instance}{a}" for a in "xyz"]
+            elif stream.kind == "temp":
+                columns.append(np.interp(session.t_acc, stream.t, stream.values[:, 0])[:, None])
+                names.append("temp")
     head = ""
     if preamble is None:
         columns.insert(0, session.t_acc[:, None])
