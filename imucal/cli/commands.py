@@ -100,6 +100,15 @@ def calibrate(
         help="Another recording of the same device at another temperature (repeat for "
              "several): the bias in temperature is fitted to all their still poses "
              "(method.md §12); implies --temperature.")] = None,
+    reference: Annotated[str | None, typer.Option(
+        "--reference", metavar="NAME", show_default=False,
+        help="The reference triad, every other one put in its frame: a table's a, a2, a3, a "
+             "log's stream or IMU name [default: the first].")] = None,
+    ranges: Annotated[list[str] | None, typer.Option(
+        "--range", metavar="NAME=G", show_default=False,
+        help="A triad's full-scale range in g (repeat for each): a low-range and a high-range "
+             "accelerometer are combined (acx… in imucal apply; method.md M18) [default: which "
+             "clips, from the data].")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -112,6 +121,9 @@ def calibrate(
     """
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
+    from imucal.cli.apply_triads import stated_ranges
+
+    stated = stated_ranges(ranges, bool(all_imus or triad))
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
     inputs = [session, load_kw["gyro_path"], spec, *(same_device or [])]
     check_inputs(inputs)
@@ -139,6 +151,10 @@ def calibrate(
     with tx:
         with progress.stage(f"loading {session.name}"):
             sess = imucal.load_session(session, **load_kw)
+            if reference is not None:
+                from imucal.stages.apply_triads import reference_session
+
+                sess = reference_session(sess, reference)
         with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
             try:
                 result = imucal.calibrate(sess, **settings)
@@ -171,6 +187,9 @@ def calibrate(
             with progress.stage("calibrating the other triads"):
                 result = calibrate_triads(result, "all" if all_imus else triad,
                                           temperature or bool(same_device))
+                from imucal.pipeline import combine_triads
+
+                result = combine_triads(result, stated)
         if limits is not None:
             result = _judged_by_spec(result, limits)
         if result.verdict is not None and not result.verdict.usable and not allow_poor:
@@ -231,6 +250,10 @@ def apply(
     out: Annotated[str, typer.Option(
         "--out", "-o", metavar="OUT.parquet|.csv|.mat", show_default=False,
         help="Calibrated signals to write; the format follows the name.")],
+    reference: Annotated[str | None, typer.Option(
+        "--reference", metavar="NAME", show_default=False,
+        help="Write every triad in this triad's frame (a2, a stream or IMU name) [default: "
+             "the calibration's reference].")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -259,7 +282,9 @@ def apply(
             sess = imucal.load_session(session, number_samples=len(cal.segments) == 1,
                                        **load_kw)
         with progress.stage("applying"):
-            signals = cal.apply(sess)
+            from imucal.cli.apply_triads import applied
+
+            signals, triad_lines = applied(cal, calibration, sess, reference)
         with progress.stage(f"writing {out}"):
             write_signals(tx, out, signals)
         tx.commit()
@@ -278,6 +303,7 @@ def apply(
              f"{float(np.median(norm)):.5g}, |g| = {cal.g:g})"
              + (", gyroscope in rad/s" if signals.gyro is not None else "")
              + _mag_output(out, signals)]
+    lines += triad_lines
     if sess.has_gyro and signals.gyro is None:
         lines.append("warnings:\n  - the calibration has no gyroscope model: gyroscope not "
                      "written")

@@ -127,6 +127,7 @@ def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
             data |= {"gyro": cal.gyro, "t_gyro": cal.t_gyro}
         if cal.mag is not None:
             data |= {"mag": cal.mag, "t_mag": cal.t_mag}
+        data |= extra_variables(cal.columns)
 
         def _w(tmp: Path) -> None:
             with open(tmp, "wb") as f:
@@ -145,15 +146,33 @@ def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
         m = np.full((len(cal.t_acc), 3), np.nan)
         m[rows] = cal.mag
         cols |= {"mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2]}
+    cols |= cal.columns
     df = pl.DataFrame(cols)
     if rows is not None:
         df = df.with_columns(pl.col("mx", "my", "mz").fill_nan(None))  # empty cells
+    if cal.columns:  # a triad without a sample at a row: an empty cell
+        df = df.with_columns(pl.col(*cal.columns).fill_nan(None))
     _write_table(path, df, fmt)
     if cal.gyro is not None and not shared:
         p = Path(path)
         gpath = p.with_name(p.stem + ".gyro" + p.suffix)
         _write_table(gpath, pl.DataFrame({"t": cal.t_gyro, "gx": cal.gyro[:, 0],
                                           "gy": cal.gyro[:, 1], "gz": cal.gyro[:, 2]}), fmt)
+
+
+def extra_variables(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A .mat file's variables for the columns beside the pair, on ``t_acc``: each triad's
+    x, y, z as one (N, 3) variable named by its prefix (``a2``, ``g2``, ``ac``), a single
+    column as itself (``temp``)."""
+    out: dict[str, np.ndarray] = {}
+    names = list(columns)
+    for name in names:
+        if name[-1:] in "xyz" and all(name[:-1] + a in columns for a in "xyz"):
+            if name[-1] == "x":
+                out[name[:-1]] = np.column_stack([columns[name[:-1] + a] for a in "xyz"])
+        else:
+            out[name] = np.asarray(columns[name])[:, None]
+    return out
 
 
 def mag_rows(cal: CalibratedSignals):
