@@ -205,9 +205,9 @@ def apply_one(tc: TriadCal, sub: Session, temp: Stream | None, notes: list[str]
             outside = "" if lo <= t_lo and t_hi <= hi else (
                 f"; this session's {t_lo:.1f} to {t_hi:.1f} deg C leaves the span, where the "
                 "model is held at its end values (never extrapolated)")
-            notes.append(f"{tc.name}: bias at each sample's temperature ({temp.instance}), the model "
-                         f"fitted over {lo:.1f} to {hi:.1f} deg C{outside}")
-    if not np.allclose(tc.R, np.eye(3), rtol=0, atol=0):
+            notes.append(f"{tc.name}: bias at each sample's temperature ({temp.instance}), the "
+                         f"model fitted over {lo:.1f} to {hi:.1f} deg C{outside}")
+    if not np.array_equal(tc.R, np.eye(3)):
         acc = acc @ tc.R.T
         gyro = None if gyro is None else gyro @ tc.R.T
     return acc, gyro
