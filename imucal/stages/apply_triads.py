@@ -232,15 +232,14 @@ class TriadsCalibration:
         the frame of the reference (``reference``: another triad of the file, by name); the
         combined accelerometer (M18); the temperature as ``temp``."""
         acc_name, gyro_name = main_names(session)
-        by_name = {tc.name: tc for tc in self.triads}
         first = self.triads[0]
         alias = {}
         if first.name not in [s.name for s in session.others if s.kind == "acc"]:
             # The file's reference is this session's calibrated pair (a table's, or a log's
             # chosen by --acc as at calibration).
-            del by_name[first.name]
-            by_name[acc_name] = dataclasses.replace(first, name=acc_name)
             alias[first.name] = acc_name
+        by_name = {alias.get(tc.name, tc.name): dataclasses.replace(
+            tc, name=alias.get(tc.name, tc.name)) for tc in self.triads}
         frame = np.eye(3)
         if reference is not None:
             ref = [tc for tc in by_name.values() if matches(tc.name, None, reference)]
@@ -252,6 +251,9 @@ class TriadsCalibration:
         notes: list[str] = []
         if reference is not None:
             notes.append(f"every triad in the frame of {ref[0].name}")
+        elif not alias:
+            notes.append(f"every triad in the frame of {first.name}, the calibration's "
+                         "reference")
         t = session.t_acc
         main = by_name.get(acc_name)
         if main is None:
@@ -268,6 +270,8 @@ class TriadsCalibration:
                 notes.append(f"{stream.name}: not in the calibration: not written")
                 continue
             g = next((s for s in session.others if s.name == tc.gyro), None)
+            if tc.gyro is None:  # the file's reference: its IMU's gyroscope, as at calibration
+                g = gyro_partner(session.others, stream)
             sub = triad_session(session, stream, g, tc.time_shift)
             a, w = apply_one(tc, sub, temp_stream(session, stream.name, stream.imu), notes)
             own[tc.name] = (sub.t_acc, sub.acc, a, sub.acc_unit)
