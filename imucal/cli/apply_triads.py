@@ -12,23 +12,33 @@ def applied(cal: Any, calibration: Path, session: Any, reference: str | None
             ) -> tuple[Any, list[str]]:
     """The calibrated signals of ``session`` (``cal.apply``'s, with the other triads' columns
     beside them where the file holds triads or temperature models) and the notes to print."""
-    import dataclasses
-
     from imucal.errors import ImucalError
     from imucal.io.triads_calibration import load_triads
+    from imucal.stages.apply import CalibratedSignals
 
-    signals = cal.apply(session)
     triads = load_triads(str(calibration), cal)
     if triads is None:
         if reference is not None:
             raise ImucalError("--reference chooses among the calibration's triads; it holds one "
                               "(calibrate with --all-imus or --triad)", source=str(calibration),
                               field="--reference")
-        return signals, []
-    out = triads.apply(session, reference)
-    mag = signals.mag if signals.mag is None else signals.mag @ out.frame.T
-    signals = dataclasses.replace(signals, acc=out.acc, gyro=out.gyro, columns=out.columns,
-                                  mag=mag)
+        return cal.apply(session), []
+    # The file's own models on the pair only where its reference is the pair (after calibrate
+    # --reference a2 the pair is one of the file's other triads).
+    base = cal.apply(session) if triads.reference_is_pair(session) else None
+    out = triads.apply(session, reference, base=base)
+    t_mag = mag = None
+    stream = session.magnetometer
+    if base is not None:
+        t_mag, mag = base.t_mag, base.mag
+    elif cal.mag is not None and stream is not None:  # M8 is in the file's reference's frame
+        t_mag, mag = stream.t, cal.mag.apply(stream.values)
+    if mag is not None:
+        mag = mag @ out.frame.T
+    signals = CalibratedSignals(t_acc=session.t_acc, acc=out.acc,
+                                t_gyro=None if out.gyro is None else session.t_gyro,
+                                gyro=out.gyro, acc_unit=out.acc_unit, t_mag=t_mag, mag=mag,
+                                columns=out.columns)
     written = [c for c in out.columns if c[-1:] == "x" and c[:-1] + "y" in out.columns]
     head = ", ".join(f"{c[:-1]}x, {c[:-1]}y, {c[:-1]}z" for c in written) or "no other triad"
     head += "" if "temp" not in out.columns else "; the temperature as temp"

@@ -130,7 +130,7 @@ def triads_section(result: Result, result_to_dict: Callable[[Result], dict]) -> 
         if tri.result is not None:  # the shift its times were given (§11's two clocks)
             shift = float(next(s.t[0] for s in result.session.others if s.name == tri.name)
                           - tri.result.session.t_acc[0])
-            entry["times_moved_by_s"] = _f(-shift)
+            entry["times_moved_by_s"] = _f(0.0 - shift)
         entry["said"] = list(tri.said)
         out.append(entry)
     chosen = result.session.chosen

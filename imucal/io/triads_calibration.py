@@ -30,7 +30,10 @@ def load_triads(path: str, reference: Calibration) -> TriadsCalibration | None:
 def _array(x: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
     if _has_bool(x):
         raise ValueError(f"{what} must hold numbers, not true/false")
-    a = np.array(x, dtype=float)
+    try:
+        a = np.array(x, dtype=float)
+    except (TypeError, ValueError):
+        a = np.full(shape, np.nan)
     if a.shape != shape or not np.all(np.isfinite(a)):
         raise ValueError(f"{what} must be {' x '.join(map(str, shape))} finite numbers")
     return a
@@ -128,7 +131,7 @@ def triads_from_dict(data: dict, reference: Calibration, source: str
                 name=str(e["accelerometer"]), gyro=e.get("gyroscope"), calibration=own,
                 R=_rotation(e["rotation_to_reference"], "rotation_to_reference"),
                 acc_temp=tt.get("accelerometer"), gyro_temp=tt.get("gyroscope"),
-                time_shift=0.0 if shift is None else -float(_array(shift, (), "times_moved"))))
+                time_shift=0.0 if shift is None else -float(_array(shift, (), "times_moved_by_s"))))
         combined = None
         c = section.get("combined") if isinstance(section, dict) else None
         if isinstance(c, dict) and c.get("combined"):

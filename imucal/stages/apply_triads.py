@@ -17,7 +17,7 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.session import Session
-from imucal.stages.apply import Calibration
+from imucal.stages.apply import CalibratedSignals, Calibration
 from imucal.stages.combine import BAND, ClipLevels, Step, combine, step_text
 from imucal.stages.temperature import BiasPolynomial
 from imucal.streams import Stream
@@ -153,6 +153,7 @@ class TriadSignals:
     notes: tuple[str, ...]
     step: Step | None = None
     frame: np.ndarray = dataclasses.field(default_factory=lambda: np.eye(3))  # applied last
+    acc_unit: str = "g"  # the pair's calibrated unit
 
 
 def on_clock(t_from: np.ndarray, x: np.ndarray, t_to: np.ndarray) -> np.ndarray:
@@ -178,14 +179,15 @@ def temp_stream(session: Session, acc: str, imu: str | None = None) -> Stream | 
     return device[0] if device else (temps[0] if len(temps) == 1 else None)
 
 
-def apply_one(tc: TriadCal, sub: Session, temp: Stream | None, notes: list[str]
-              ) -> tuple[np.ndarray, np.ndarray | None]:
+def apply_one(tc: TriadCal, sub: Session, temp: Stream | None, notes: list[str],
+              base: CalibratedSignals | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """One triad's calibrated accelerometer and gyroscope on their own clocks, in the
     reference's frame: its models (M2, M4), the bias at each sample's temperature (M16, held
     at its end values outside the span) where a temperature model was fitted and the session
-    holds a temperature, then ``R``."""
+    holds a temperature, then ``R``. ``base``: ``tc.calibration.apply(sub)`` where the caller
+    has it already."""
     cal = tc.calibration
-    sig = cal.apply(sub)
+    sig = cal.apply(sub) if base is None else base
     acc, gyro = sig.acc, sig.gyro
     temps = [f for f in (tc.acc_temp, tc.gyro_temp) if f is not None]
     if temps and len(cal.segments) == 1:
@@ -227,10 +229,12 @@ class TriadsCalibration:
     triads: tuple[TriadCal, ...]
     combined: CombinedSpec | None = None
 
-    def apply(self, session: Session, reference: str | None = None) -> TriadSignals:
+    def apply(self, session: Session, reference: str | None = None,
+              base: CalibratedSignals | None = None) -> TriadSignals:
         """Each triad of ``session`` calibrated, on the calibrated accelerometer's clock, in
         the frame of the reference (``reference``: another triad of the file, by name); the
-        combined accelerometer (M18); the temperature as ``temp``."""
+        combined accelerometer (M18), in the pair's unit; the temperature as ``temp``.
+        ``base``: the pair's own calibrated signals, where the caller has them already."""
         acc_name, gyro_name = main_names(session)
         first = self.triads[0]
         alias = {}
@@ -260,7 +264,9 @@ class TriadsCalibration:
             raise ImucalError(f"the calibration holds no model for this session's accelerometer "
                               f"({acc_name})", source=session.source, field="accelerometer")
         own: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, str]] = {}
-        acc, gyro = apply_one(main, session, temp_stream(session, acc_name), notes)
+        # base is the file's reference's models on the pair: this pair's only where it is that
+        acc, gyro = apply_one(main, session, temp_stream(session, acc_name), notes,
+                              base if alias else None)
         own[main.name] = (t, session.acc, acc, session.acc_unit)
         columns: dict[str, np.ndarray] = {}
         k = 2
@@ -293,7 +299,12 @@ class TriadsCalibration:
         acc = acc @ frame.T
         gyro = None if gyro is None else gyro @ frame.T
         return TriadSignals(acc=acc, gyro=gyro, columns=columns, notes=tuple(notes), step=step,
-                            frame=frame)
+                            frame=frame, acc_unit=main.calibration.acc_unit)
+
+    def reference_is_pair(self, session: Session) -> bool:
+        """Is the file's reference this session's calibrated pair (not one of its other
+        streams, as after ``calibrate --reference``)?"""
+        return self.triads[0].name not in [s.name for s in session.others if s.kind == "acc"]
 
     def _combine(self, own: dict, by_name: dict, alias: dict[str, str], t: np.ndarray,
                  frame: np.ndarray, columns: dict[str, np.ndarray],
@@ -313,7 +324,8 @@ class TriadsCalibration:
         g_high = by_name[names[1]].calibration.g
         high = on_clock(t_high, a_high * (g_low / g_high), t_low)
         out, step = combine(a_low, high, spec.levels.nearness(raw_low), g_low, spec.band)
-        out = on_clock(t_low, out @ frame.T, t)
+        g_pair = by_name[next(iter(own))].calibration.g  # the pair's unit, as ax… (first)
+        out = on_clock(t_low, out @ frame.T * (g_pair / g_low), t)
         for j, axis in enumerate("xyz"):
             columns[f"ac{axis}"] = out[:, j]
         notes.append(step_text(step, names[0], names[1], spec.high_noise_mg))
