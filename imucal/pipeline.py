@@ -728,8 +728,8 @@ def combine_triads(result: Result, ranges: dict[str, float] | None = None) -> Re
     names = [tc.name for tc in cal.triads]
     for wanted in ranges:
         if not any(matches(tc.name, _imu_of(session, tc.name), wanted) for tc in cal.triads):
-            raise ImucalError(f"--range {wanted}: no calibrated accelerometer triad of that name; "
-                              f"there are: {', '.join(n.split(' ', 1)[1] for n in names)}",
+            raise ImucalError(f"no calibrated accelerometer triad {wanted!r}; there are: "
+                              f"{', '.join(n.split(' ', 1)[1] for n in names)}",
                               source=session.source, field="--range")
     if len(cal.triads) != 2:
         if ranges:

@@ -188,3 +188,22 @@ def test_synth_triad_options_refused_where_they_cannot_be_written(tmp_path: Path
         proc = _imucal("synth", *args, cwd=tmp_path)
         assert proc.returncode == 2 and says in proc.stderr, proc.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_ranges_stated_when_nothing_clips(tmp_path: Path):
+    _ok("synth", "s.csv", "--seed", "4", "--poses", str(POSES), "--acc2", "8", cwd=tmp_path)
+    _ok("calibrate", "s.csv", "--out", "plain.json", "--all-imus", cwd=tmp_path)
+    assert "combined" not in json.loads((tmp_path / "plain.json").read_text())["triads"]
+    out = _ok("calibrate", "s.csv", "--out", "c.json", "--all-imus", "--range", "a2=8",
+              "--range", "a=2", cwd=tmp_path)
+    c = json.loads((tmp_path / "c.json").read_text())["triads"]["combined"]
+    assert (c["low_range"], c["high_range"]) == ("acc a", "acc a2")
+    assert c["low_range_limits_raw"] == {"lo": [-2.0] * 3, "hi": [2.0] * 3, "how": "stated"}
+    assert c["step_at_switch_mg"] is None and "is not measured" in out.stdout
+    _ok("apply", "c.json", "s.csv", "--out", "o.csv", cwd=tmp_path)
+    d = pl.read_csv(tmp_path / "o.csv")
+    np.testing.assert_array_equal(_xyz(d, "ac"), _xyz(d, "a"))  # 1 g: far below 2 g
+    bad = _imucal("calibrate", "s.csv", "--out", "x.json", "--all-imus", "--range", "a7=2",
+                  cwd=tmp_path)
+    assert bad.returncode == 1 and bad.stderr.strip().splitlines() == [
+        "imucal: error: s.csv: --range: no calibrated accelerometer triad 'a7'; there are: a, a2"]
