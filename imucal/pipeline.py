@@ -23,6 +23,15 @@ from imucal.stages.accel import (
 )
 from imucal.stages.accel_cv import leave_one_block_out
 from imucal.stages.apply import Calibration, MagModel, SegmentModels
+from imucal.stages.apply_triads import (
+    Combination,
+    CombinedSpec,
+    TriadCal,
+    TriadsCalibration,
+    main_names,
+    matches,
+)
+from imucal.stages.combine import choose_low, clip_levels, found_clip
 from imucal.stages.detect import Detection
 from imucal.stages.detect_score import count_orientations
 from imucal.stages.detect_tuning import tune_detector
@@ -680,3 +689,84 @@ def calibrate_same_device(results: Sequence[Result]) -> Result:
             "pooled, each at its own temperature)",)
     return dataclasses.replace(first, temperature=tuple(
         dataclasses.replace(f, notes=said + f.notes) for f in fits if f is not None))
+
+
+# --- the triads as one calibration to apply; a low-range and a high-range pair (M18) ------------
+
+
+def triads_calibration(result: Result) -> TriadsCalibration:
+    """The run's triads as applying them needs (method.md §11, §12): the reference's models and
+    temperature fits first, then each other triad calibrated and turned to the reference (one
+    without a rotation to it is left out), its times moved as the run moved them."""
+    def temps(r: Result) -> dict:
+        return {f.sensor: f for f in r.temperature}
+
+    ref_t = temps(result)
+    acc_name, gyro_name = main_names(result.session)
+    out = [TriadCal(name=acc_name, gyro=gyro_name, calibration=result.calibration, R=np.eye(3),
+                    acc_temp=ref_t.get("accelerometer"), gyro_temp=ref_t.get("gyroscope"))]
+    for tri in result.triads:
+        if tri.result is None or tri.agreement is None:
+            continue
+        t = temps(tri.result)
+        stream = next(s for s in result.session.others if s.name == tri.name)
+        out.append(TriadCal(name=tri.name, gyro=tri.gyro, calibration=tri.result.calibration,
+                            R=tri.agreement.rotation.R, acc_temp=t.get("accelerometer"),
+                            gyro_temp=t.get("gyroscope"),
+                            time_shift=float(stream.t[0] - tri.result.session.t_acc[0])))
+    combined = None if result.combined is None else result.combined.spec
+    return TriadsCalibration(triads=tuple(out), combined=combined)
+
+
+def combine_triads(result: Result, ranges: dict[str, float] | None = None) -> Result:
+    """The run with its low-range and high-range accelerometers combined (M18) where the
+    reference and one other triad are such a pair: which is which from ``ranges`` (g, by triad
+    name) or from the one that clips, the low-range one's clip levels, the high-range one's
+    noise in the still blocks, and the step at the switch measured on this session."""
+    ranges = dict(ranges or {})
+    session = result.session
+    cal = triads_calibration(result)
+    names = [tc.name for tc in cal.triads]
+    for wanted in ranges:
+        if not any(matches(tc.name, _imu_of(session, tc.name), wanted) for tc in cal.triads):
+            raise ImucalError(f"no calibrated accelerometer triad {wanted!r}; there are: "
+                              f"{', '.join(n.split(' ', 1)[1] for n in names)}",
+                              source=session.source, field="--range")
+    if len(cal.triads) != 2:
+        if ranges:
+            raise ImucalError(f"--range combines a pair of accelerometer triads; {len(cal.triads)} "
+                              "are calibrated and turned to the reference", source=session.source,
+                              field="--range")
+        return result
+    subs = [session] + [next(t for t in result.triads if t.name == names[1]).result.session]
+    stated = tuple(next((g for w, g in ranges.items()
+                         if matches(n, _imu_of(session, n), w)), None) for n in names)
+    choice = choose_low(tuple(names), tuple(s.acc for s in subs), tuple(s.acc_unit for s in subs),
+                        stated)
+    if choice.low is None:
+        if ranges or any(np.isfinite(found_clip(s.acc)[k]).any() for s in subs for k in (0, 1)):
+            return dataclasses.replace(result, combined=Combination(None, None, (choice.why,)))
+        return result
+    low, high = choice.low, 1 - choice.low
+    levels = clip_levels(subs[low].acc, subs[low].acc_unit, stated[low])
+    if levels is None:
+        return dataclasses.replace(result, combined=Combination(None, None, (
+            f"{names[low]}: its range is not known (no clipped sample, none stated with --range "
+            "NAME=G) and the raw unit has no level in g: not combined",)))
+    high_cal = cal.triads[high].calibration
+    noise = interval_means(subs[high].t_acc, functools.partial(high_cal.rows, subs[high], "acc"),
+                           result.block_times, high_cal.g)
+    per_sample = noise.var * noise.counts
+    noise_mg = float(np.sqrt(np.nanmedian(per_sample))) * 1e3 if np.isfinite(
+        per_sample).any() else None
+    spec = CombinedSpec(low=names[low], high=names[high], levels=levels, high_noise_mg=noise_mg)
+    applied = dataclasses.replace(cal, combined=spec).apply(session)
+    said = (f"{choice.why}: {names[low]} is the low-range triad (limits "
+            f"{levels.how}), {names[high]} the high-range one",
+            *(n for n in applied.notes if n.startswith("combined accelerometer")))
+    return dataclasses.replace(result, combined=Combination(spec, applied.step, said))
+
+
+def _imu_of(session: Session, name: str) -> str | None:
+    stream = next((s for s in session.others if s.name == name), None)
+    return None if stream is None else stream.imu

@@ -202,6 +202,8 @@ def _triads(result: Result) -> tuple[Line, ...]:
                             f"scales within {dk:.0f} ppm and bias within {db:.3g} mg of its own "
                             f"fit ({v.rms_mg:.3g} mg RMS over {v.blocks} still poses)"))
         out += [Line("triad", t) for t in tri.said]
+    if result.combined is not None:  # a low-range and a high-range pair (M18)
+        out += [Line("triad", t) for t in result.combined.said]
     return tuple(out)
 
 

@@ -15,6 +15,7 @@ from imucal.settings import Settings
 from imucal.stages.accel import AccFit
 from imucal.stages.accel_cv import AccCrossValidation
 from imucal.stages.apply import CHUNK_ROWS, CalibratedSignals, Calibration, segment_pieces
+from imucal.stages.apply_triads import Combination
 from imucal.stages.detect import Detection
 from imucal.stages.group import Grouping
 from imucal.stages.guide import Guide
@@ -105,6 +106,9 @@ class Result:
     # Each sensor's bias as a polynomial in temperature (method.md §12;
     # imucal.pipeline.calibrate_temperature); empty unless asked for and a stream is there.
     temperature: tuple[BiasPolynomial, ...] = ()
+    # The low-range and high-range accelerometers combined (method.md §11, M18;
+    # imucal.pipeline.combine_triads); None unless the run's triads are such a pair.
+    combined: Combination | None = None
 
     def apply(self, session: Session) -> CalibratedSignals:
         return self.calibration.apply(session)

@@ -69,6 +69,8 @@ class Truth:
     mag: MagTruth | None = None  # the magnetometer, when the session has one
     triads: tuple[TriadTruth, ...] = ()  # the session's other accelerometer triads (§11)
     temperature: TemperatureProfile | None = None  # the bias's drift with heat (§12)
+    acc_range: float | None = None  # the first accelerometer's clip level, raw unit (M18)
+    shake: float = 0.0  # peak linear acceleration during the turns, g
 
     def to_dict(self) -> dict:
         def m(model: SensorModel | None) -> dict | None:
@@ -83,7 +85,9 @@ class Truth:
                 "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4)"
                 } | ({} if self.mag is None else {"magnetometer": self.mag.to_dict()}) | (
                     {"triads": [t.to_dict() for t in self.triads]} if self.triads else {}) | (
-                    {"temperature": self.temperature.to_dict()} if self.temperature else {})
+                    {"temperature": self.temperature.to_dict()} if self.temperature else {}) | (
+                    {"accelerometer_range": self.acc_range} if self.acc_range else {}) | (
+                    {"shake_g": self.shake} if self.shake else {})
 
     def acc_bias_at(self, temp: np.ndarray) -> np.ndarray:
         """(N, 3) the accelerometer's true bias (raw unit) at temperatures ``temp`` (M16)."""
@@ -170,6 +174,8 @@ class SecondTriad:
     bias: float = 0.05
     gyro: bool = False  # a gyroscope in the same IMU (its frame the triad's), named g2
     gyro_noise: float = 0.004  # rad/s per sample
+    # On the first triad's timestamps (one table's rows) instead of a clock of its own.
+    same_clock: bool = False
 
 
 @dataclass(frozen=True)
@@ -288,6 +294,8 @@ def make_session(
     acc_drift: float = 0.0,
     second_acc: SecondTriad | tuple[SecondTriad, ...] | None = None,
     temperature: TemperatureProfile | None = None,
+    acc_range: float | None = None,
+    shake: float = 0.0,
 ) -> tuple[Session, Truth]:
     """A session of ``poses`` still poses with turns between them, and the truth that made it.
 
@@ -313,7 +321,10 @@ def make_session(
     drawn from a generator of its own: the first triad and the gyroscope are the same as
     without it. ``temperature`` makes
     the biases drift with a temperature profile and adds its stream (``temp``, in
-    ``Session.others``); the noise drawn is the same as without it.
+    ``Session.others``); the noise drawn is the same as without it. ``acc_range`` (g) clips
+    the first accelerometer there (a low-range part, method.md §11, M18); ``shake`` (g) adds a
+    linear acceleration of that peak during every turn (:func:`specific_force`), which every
+    accelerometer triad reads: drawn apart, so that 0 leaves the session as it was.
     """
     rng = np.random.default_rng(seed)
     motion = make_motion(rng, poses, still, move, init_still, coplanar)
@@ -340,7 +351,8 @@ def make_session(
     drift = gyro_drift * drift / np.linalg.norm(drift) / max(duration, 1e-9)
 
     q_a, _ = motion.at(t_a)
-    ideal_a = quat.rotate_inverse(q_a, np.array([0.0, 0.0, 1.0]))
+    ideal_a = quat.rotate_inverse(q_a, specific_force(motion, t_a, shake, seed) if shake
+                                  else np.array([0.0, 0.0, 1.0]))
     _, w = motion.at(t_g)
 
     raw_a = _distort(ideal_a, t_a, acc_truth, acc2, t_change)
@@ -366,6 +378,8 @@ def make_session(
         temp_stream = Stream("temp", "temp", t_t, heat[:, None], "degC",
                              "synthetic temperature", time_source="the session's clock")
 
+    if acc_range is not None:  # the part's range: flat beyond it (in g, before the unit)
+        raw_a = np.clip(raw_a, -acc_range, acc_range)
     g = 1.0
     if acc_unit == "m/s^2":
         g = STANDARD_GRAVITY
@@ -384,7 +398,8 @@ def make_session(
     others, triads = (), ()
     specs = (second_acc,) if isinstance(second_acc, SecondTriad) else (second_acc or ())
     for i, spec in enumerate(specs):  # a2 (g2), a3 (g3), ...: each from a generator of its own
-        streams, tt = _second_triad(motion, spec, seed, acc_rate, acc_unit, number=i + 2)
+        streams, tt = _second_triad(motion, spec, seed, acc_rate, acc_unit, number=i + 2,
+                                    shake=shake, t_first=t_a)
         others, triads = others + streams, triads + (tt,)
     if temp_stream is not None:
         if acc_unit == "counts" or gyro_unit == "counts":
@@ -395,7 +410,9 @@ def make_session(
                       source=f"synthetic(seed={seed}, poses={poses})", others=others)
     truth = Truth(acc=acc_truth, gyro=gyro_truth, acc2=acc2, gyro2=gyro2, t_change=t_change,
                   gyro_drift=drift, g=g, pose_times=motion.still, triads=triads,
-                  temperature=temperature)
+                  temperature=temperature,
+                  acc_range=None if acc_range is None else float(acc_range) * g,
+                  shake=float(shake))
     if mag_rate is not None:
         session, truth = add_magnetometer(
             session, truth, motion, seed, rate=mag_rate, field=mag_field, dip_deg=mag_dip_deg,
@@ -456,8 +473,33 @@ def add_magnetometer(session: Session, truth: Truth, motion: Motion, seed: int, 
     return replace(session, others=(stream, *session.others)), replace(truth, mag=mt)
 
 
+SHAKE_HZ = 4.0  # the shake's frequency during a turn
+
+
+def specific_force(motion: Motion, t: np.ndarray, shake: float, seed: int) -> np.ndarray:
+    """(N, 3) the specific force in the world frame, g: gravity's ``e_z``, plus with ``shake``
+    > 0 a linear acceleration during every turn, ``shake sin^2(pi tau) sin(2 pi f (t - t_0))``
+    along a direction drawn per turn (its own generator, ``[seed, 5]``; ``f`` =
+    :data:`SHAKE_HZ`, ``tau`` the turn's fraction done)."""
+    out = np.zeros((len(t), 3))
+    out[:, 2] = 1.0
+    if not shake:
+        return out
+    way = np.random.default_rng([seed, 5]).normal(0, 1, (max(len(motion.q) - 1, 1), 3))
+    way /= np.linalg.norm(way, axis=1, keepdims=True)
+    k = np.clip(np.searchsorted(motion.still[:, 0], t, side="right") - 1, 0, len(motion.q) - 1)
+    moving = (t >= motion.still[k, 1]) & (k < len(motion.q) - 1)
+    km = k[moving]
+    t0, t1 = motion.still[km, 1], motion.still[km + 1, 0]
+    tau = (t[moving] - t0) / (t1 - t0)
+    size = shake * np.sin(np.pi * tau) ** 2 * np.sin(2 * np.pi * SHAKE_HZ * (t[moving] - t0))
+    out[moving] += way[km] * size[:, None]
+    return out
+
+
 def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
-                  acc_unit: str, number: int = 2) -> tuple[tuple[Stream, ...], TriadTruth]:
+                  acc_unit: str, number: int = 2, shake: float = 0.0,
+                  t_first: np.ndarray | None = None) -> tuple[tuple[Stream, ...], TriadTruth]:
     """The second accelerometer's stream (and its gyroscope's) and truth (method.md §11, M12:
     ``u = R v``; the gyroscope in the same frame, so M14's rotation is ``R`` too)."""
     if acc_unit not in ("g", "m/s^2"):
@@ -470,8 +512,11 @@ def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
     rate = spec.rate or acc_rate
     duration = float(motion.still[-1, 1])
     t = (rng.uniform(0, 1) + np.arange(int(duration * rate) - 1)) / rate
+    if spec.same_clock:
+        t = t_first
     q, w = motion.at(t)
-    v = quat.rotate_inverse(q, np.array([0.0, 0.0, 1.0])) @ R  # v = R' u, row by row
+    up = specific_force(motion, t, shake, seed) if shake else np.array([0.0, 0.0, 1.0])
+    v = quat.rotate_inverse(q, up) @ R  # v = R' u, row by row
     raw = model.invert(v) + rng.normal(0, spec.noise, v.shape)
     raw = np.clip(raw, -spec.range_g, spec.range_g)  # the triad's range: flat beyond it
     g = STANDARD_GRAVITY if acc_unit == "m/s^2" else 1.0

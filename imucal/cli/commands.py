@@ -100,6 +100,15 @@ def calibrate(
         help="Another recording of the same device at another temperature (repeat for "
              "several): the bias in temperature is fitted to all their still poses "
              "(method.md §12); implies --temperature.")] = None,
+    reference: Annotated[str | None, typer.Option(
+        "--reference", metavar="NAME", show_default=False,
+        help="The reference triad, every other one put in its frame: a table's a, a2, a3, a "
+             "log's stream or IMU name [default: the first].")] = None,
+    ranges: Annotated[list[str] | None, typer.Option(
+        "--range", metavar="NAME=G", show_default=False,
+        help="A triad's full-scale range in g (repeat for each): a low-range and a high-range "
+             "accelerometer are combined (acx… in imucal apply; method.md M18) [default: which "
+             "clips, from the data].")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS and SETTING_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -112,6 +121,9 @@ def calibrate(
     """
     settings = build_settings(**pick(options, SETTING_OPTIONS))
     check_magnitudes(settings)
+    from imucal.cli.apply_triads import stated_ranges
+
+    stated = stated_ranges(ranges, bool(all_imus or triad))
     load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
     inputs = [session, load_kw["gyro_path"], spec, *(same_device or [])]
     check_inputs(inputs)
@@ -139,6 +151,10 @@ def calibrate(
     with tx:
         with progress.stage(f"loading {session.name}"):
             sess = imucal.load_session(session, **load_kw)
+            if reference is not None:
+                from imucal.stages.apply_triads import reference_session
+
+                sess = reference_session(sess, reference)
         with progress.stage(f"calibrating {len(sess.acc)} samples (detect, group, fit)"):
             try:
                 result = imucal.calibrate(sess, **settings)
@@ -171,6 +187,9 @@ def calibrate(
             with progress.stage("calibrating the other triads"):
                 result = calibrate_triads(result, "all" if all_imus else triad,
                                           temperature or bool(same_device))
+                from imucal.pipeline import combine_triads
+
+                result = combine_triads(result, stated)
         if limits is not None:
             result = _judged_by_spec(result, limits)
         if result.verdict is not None and not result.verdict.usable and not allow_poor:
@@ -231,6 +250,10 @@ def apply(
     out: Annotated[str, typer.Option(
         "--out", "-o", metavar="OUT.parquet|.csv|.mat", show_default=False,
         help="Calibrated signals to write; the format follows the name.")],
+    reference: Annotated[str | None, typer.Option(
+        "--reference", metavar="NAME", show_default=False,
+        help="Write every triad in this triad's frame (a2, a stream or IMU name) [default: "
+             "the calibration's reference].")] = None,
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -259,7 +282,9 @@ def apply(
             sess = imucal.load_session(session, number_samples=len(cal.segments) == 1,
                                        **load_kw)
         with progress.stage("applying"):
-            signals = cal.apply(sess)
+            from imucal.cli.apply_triads import applied
+
+            signals, triad_lines = applied(cal, calibration, sess, reference)
         with progress.stage(f"writing {out}"):
             write_signals(tx, out, signals)
         tx.commit()
@@ -278,6 +303,7 @@ def apply(
              f"{float(np.median(norm)):.5g}, |g| = {cal.g:g})"
              + (", gyroscope in rad/s" if signals.gyro is not None else "")
              + _mag_output(out, signals)]
+    lines += triad_lines
     if sess.has_gyro and signals.gyro is None:
         lines.append("warnings:\n  - the calibration has no gyroscope model: gyroscope not "
                      "written")
@@ -404,6 +430,40 @@ def synth(
         callback=_one_of("lines", "motioncal", "mavlink"),
         help="With --stream: lines of t,ax,ay,az,gx,gy,gz, MotionCal's Raw: lines (counts, no "
              "time: capture them with --rate), or MAVLink HIGHRES_IMU messages.")] = "lines",
+    acc_range: Annotated[float | None, typer.Option(
+        "--acc-range", metavar="G", callback=positive, show_default=False,
+        help="The accelerometer's range: it reads flat beyond it (a low-range part).")] = None,
+    shake: Annotated[float, typer.Option(
+        "--shake", metavar="G", callback=non_negative,
+        help="A shake of this peak linear acceleration during every turn, which every "
+             "accelerometer reads (past --acc-range: clipped).")] = 0.0,
+    acc2: Annotated[float | None, typer.Option(
+        "--acc2", metavar="G", callback=positive, show_default=False,
+        help="A second accelerometer (columns a2x, a2y, a2z) of this range, with its own "
+             "errors and noise, turned from the first; the truth in the truth file.")] = None,
+    acc2_rotation: Annotated[float, typer.Option(
+        "--acc2-rotation", metavar="DEG", callback=non_negative,
+        help="--acc2: its rotation from the first, about an axis drawn.")] = 3.0,
+    gyro2: Annotated[bool, typer.Option(
+        "--gyro2", help="--acc2: a gyroscope in its IMU too (g2x, g2y, g2z).")] = False,
+    temperature: Annotated[tuple[float, float] | None, typer.Option(
+        "--temperature", metavar="START END", show_default=False,
+        help="A temperature (column temp, deg C) from START to END over the session, which "
+             "moves the biases (method.md M16).")] = None,
+    temp_steps: Annotated[int, typer.Option(
+        "--temp-steps", metavar="N", callback=non_negative,
+        help="--temperature in N equal steps instead of a ramp.")] = 0,
+    temp_acc_bias: Annotated[str | None, typer.Option(
+        "--temp-acc-bias", metavar="X,Y,Z", show_default=False,
+        help="--temperature: the accelerometer bias's slope, mg per deg C [default: a 2nd-order "
+             "drift].")] = None,
+    temp_acc_scale: Annotated[str | None, typer.Option(
+        "--temp-acc-scale", metavar="X,Y,Z", show_default=False,
+        help="--temperature: the accelerometer scales' slope, ppm per deg C [default: 0].")] = None,
+    temp_gyro_bias: Annotated[str | None, typer.Option(
+        "--temp-gyro-bias", metavar="X,Y,Z", show_default=False,
+        help="--temperature: the gyroscope bias's slope, deg/s per deg C [default: a 2nd-order "
+             "drift].")] = None,
     verbose: VerboseOpt = False,
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
@@ -436,6 +496,13 @@ def synth(
                                         or not 0 <= mag_disturbance[0] < mag_disturbance[1]):
         raise usage_error("--mag-disturbance T0 T1 needs --mag-rate and 0 <= T0 < T1",
                           "'--mag-disturbance'")
+    from imucal.cli.synth_triads import described, triad_kwargs
+
+    extra = triad_kwargs(csv=csv, counts="counts" in (acc_unit, gyro_unit), acc_range=acc_range,
+                         shake=shake, acc2=acc2, acc2_rotation=acc2_rotation, gyro2=gyro2,
+                         temperature=temperature, temp_steps=temp_steps,
+                         temp_acc_bias=temp_acc_bias, temp_acc_scale=temp_acc_scale,
+                         temp_gyro_bias=temp_gyro_bias)
     if minutes is not None:
         # duration ~ init_still + n * still + (n - 1) * move (the durations vary by +-20 %)
         poses = max(2, round((minutes * 60.0 - init_still + move) / (still + move)))
@@ -454,17 +521,19 @@ def synth(
                                 acc_noise=acc_noise, gyro_noise=gyro_noise, gyro_drift=drift,
                                 change_at=change_at, acc_unit=acc_unit, gyro_unit=gyro_unit,
                                 mag_rate=mag_rate, mag_field=mag_field, mag_dip_deg=mag_dip,
-                                mag_noise=mag_noise, mag_disturbance=mag_disturbance)
+                                mag_noise=mag_noise, mag_disturbance=mag_disturbance,
+                                **extra)
     with progress.stage(f"writing {out}"):
         if csv:
             stated = {"sample_rate_hz": acc_rate, "init_still_s": init_still}
             write_session_csv(out, sess, gyro_unit=gyro_unit,
                               preamble=stated if preamble else None, cut_last_line=cut_last_line,
-                              mag=mag_rate is not None)
+                              mag=mag_rate is not None, triads=bool(extra))
         else:
             write_session_mat(out, sess, gyro_unit=gyro_unit)
         write_truth(truth, tr)
     change = "" if tr.t_change is None else f", parameters change at {tr.t_change:.1f} s"
+    change += described(extra)
     if tr.mag is not None:
         change += (f", magnetometer {len(sess.others[0].t)} samples at "
                    f"{fmt_rate(mag_rate)} (gauss)")

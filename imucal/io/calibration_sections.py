@@ -127,6 +127,10 @@ def triads_section(result: Result, result_to_dict: Callable[[Result], dict]) -> 
                 "note": "the triad's M2 fitted to the reference's calibrated gravity vectors "
                         "(method.md M15): three equations per still block; the reference's own "
                         "errors pass into it and are not in these standard errors"}
+        if tri.result is not None:  # the shift its times were given (§11's two clocks)
+            shift = float(next(s.t[0] for s in result.session.others if s.name == tri.name)
+                          - tri.result.session.t_acc[0])
+            entry["times_moved_by_s"] = _f(0.0 - shift)
         entry["said"] = list(tri.said)
         out.append(entry)
     chosen = result.session.chosen
@@ -134,4 +138,31 @@ def triads_section(result: Result, result_to_dict: Callable[[Result], dict]) -> 
             "convention": "u_ref = R u_triad (method.md M12): R turns a triad's calibrated "
                           "vector into the reference triad's frame; std in degrees about the "
                           "reference's axes, total = sqrt(trace of the covariance)",
-            "triads": out}
+            "triads": out} | combined_section(result)
+
+
+def combined_section(result: Result) -> dict:
+    """The low-range and high-range accelerometers combined (method.md M18), only where the
+    run's triads are such a pair (or were stated to be)."""
+    c = result.combined
+    if c is None:
+        return {}
+    if c.spec is None:
+        return {"combined": {"combined": False, "said": list(c.said)}}
+    spec, step = c.spec, c.step
+    return {"combined": {
+        "combined": True,
+        "model": "a_C = (1 - w) a_L + w a_H, w = s((u - u_1) / (u_2 - u_1)), s(z) = 3z^2 - 2z^3 "
+                 "on [0, 1], u = max_i |x_L,i - (hi_i + lo_i)/2| / ((hi_i - lo_i)/2) of the "
+                 "low-range triad's raw reading (method.md M18); both calibrated, in the "
+                 "reference's frame",
+        "low_range": spec.low, "high_range": spec.high,
+        "low_range_limits_raw": {"lo": _fl(spec.levels.lo), "hi": _fl(spec.levels.hi),
+                                 "how": spec.levels.how},
+        "band": [_f(spec.band[0]), _f(spec.band[1])],
+        "high_range_noise_mg": _f(spec.high_noise_mg),
+        "step_at_switch_mg": None if step is None else {
+            "norm": _f(step.mg), "vector": _fl(step.vector_mg), "std": _f(step.std_mg),
+            "samples": step.samples,
+            "note": "the mean of a_H - a_L over this session's samples inside the band"},
+        "said": list(c.said)}}

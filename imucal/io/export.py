@@ -50,13 +50,16 @@ def write_session_mat(path: str | os.PathLike, session: Session, gyro_unit: str 
 
 def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str | None = None,
                       *, preamble: dict[str, float] | None = None,
-                      cut_last_line: bool = False, mag: bool = False) -> None:
+                      cut_last_line: bool = False, mag: bool = False,
+                      triads: bool = False) -> None:
     """A session as one CSV table, as a logger writes it: ``t,ax,ay,az,gx,gy,gz``; with a
     ``preamble`` of ``key,value`` lines above the header and no time column instead (the rate
     is in the preamble); ``cut_last_line`` ends the file in the middle of its last row, as a
     logger killed mid-write leaves it; ``mag``: the session's first magnetometer in columns
     ``mx,my,mz`` on the rows of its timestamps (each one an accelerometer timestamp), empty
-    on the others. Numbers are written to round-trip exactly."""
+    on the others; ``triads``: the other accelerometer and gyroscope triads (``a2x…``,
+    ``g2x…``, each on the accelerometer's timestamps) and a temperature stream (``temp``,
+    interpolated onto them). Numbers are written to round-trip exactly."""
     if not session.has_gyro or not np.array_equal(session.t_acc, session.t_gyro):
         raise ValueError("a CSV session needs the gyroscope at the accelerometer's timestamps")
     gyro = session.gyro
@@ -75,6 +78,17 @@ def write_session_csv(path: str | os.PathLike, session: Session, gyro_unit: str 
         m[rows] = stream.values
         columns.append(m)
         names += ["mx", "my", "mz"]
+    if triads:
+        for stream in session.others:
+            if stream.kind in ("acc", "gyro"):
+                if not np.array_equal(stream.t, session.t_acc):
+                    raise ValueError(f"a CSV holds {stream.name} on the accelerometer's rows: "
+                                     "it needs the same timestamps")
+                columns.append(stream.values)
+                names += [f"{stream.instance}{a}" for a in "xyz"]
+            elif stream.kind == "temp":
+                columns.append(np.interp(session.t_acc, stream.t, stream.values[:, 0])[:, None])
+                names.append("temp")
     head = ""
     if preamble is None:
         columns.insert(0, session.t_acc[:, None])
@@ -113,6 +127,7 @@ def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
             data |= {"gyro": cal.gyro, "t_gyro": cal.t_gyro}
         if cal.mag is not None:
             data |= {"mag": cal.mag, "t_mag": cal.t_mag}
+        data |= extra_variables(cal.columns)
 
         def _w(tmp: Path) -> None:
             with open(tmp, "wb") as f:
@@ -131,15 +146,33 @@ def write_calibrated(path: str | os.PathLike, cal: CalibratedSignals) -> None:
         m = np.full((len(cal.t_acc), 3), np.nan)
         m[rows] = cal.mag
         cols |= {"mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2]}
+    cols |= cal.columns
     df = pl.DataFrame(cols)
     if rows is not None:
         df = df.with_columns(pl.col("mx", "my", "mz").fill_nan(None))  # empty cells
+    if cal.columns:  # a triad without a sample at a row: an empty cell
+        df = df.with_columns(pl.col(*cal.columns).fill_nan(None))
     _write_table(path, df, fmt)
     if cal.gyro is not None and not shared:
         p = Path(path)
         gpath = p.with_name(p.stem + ".gyro" + p.suffix)
         _write_table(gpath, pl.DataFrame({"t": cal.t_gyro, "gx": cal.gyro[:, 0],
                                           "gy": cal.gyro[:, 1], "gz": cal.gyro[:, 2]}), fmt)
+
+
+def extra_variables(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A .mat file's variables for the columns beside the pair, on ``t_acc``: each triad's
+    x, y, z as one (N, 3) variable named by its prefix (``a2``, ``g2``, ``ac``), a single
+    column as itself (``temp``)."""
+    out: dict[str, np.ndarray] = {}
+    names = list(columns)
+    for name in names:
+        if name[-1:] in "xyz" and all(name[:-1] + a in columns for a in "xyz"):
+            if name[-1] == "x":
+                out[name[:-1]] = np.column_stack([columns[name[:-1] + a] for a in "xyz"])
+        else:
+            out[name] = np.asarray(columns[name])[:, None]
+    return out
 
 
 def mag_rows(cal: CalibratedSignals):

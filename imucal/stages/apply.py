@@ -9,7 +9,7 @@ so a one-segment calibration applies to any later recording of the same device.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -158,6 +158,9 @@ class CalibratedSignals:
     acc_unit: str
     t_mag: np.ndarray | None = None  # the magnetometer's own clock, s
     mag: np.ndarray | None = None  # M8 applied: the raw unit, the accelerometer's frame
+    # More columns on the accelerometer's rows (the other triads a2x…, g2x…, the combined
+    # acx…, temp: stages/apply_triads.py), in the order written; empty for one triad.
+    columns: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def acc_norm(self) -> np.ndarray:
