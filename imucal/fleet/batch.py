@@ -456,20 +456,32 @@ def run_batch(files: list[Path], out_dir: Path, *, load_kw: dict[str, Any],
 
 def _gather(client, todo: list[Job], retries: int, counts: Counts,
             progress: Callable[[Counts], None] | None) -> Iterator[dict[str, Any]]:
+    return run_on_cluster(
+        client, run_job, todo, [f"imucal-{i}-{job.sha256[:12]}" for i, job in enumerate(todo)],
+        retries, counts, progress, ok=lambda row: row["status"] == "ok",
+        lost=lambda job, why: job.row() | {"status": "error", "error": why})
+
+
+def run_on_cluster(client, fn: Callable[[Any], dict[str, Any]], jobs: list, keys: list[str],
+                   retries: int, counts: Counts, progress: Callable[[Counts], None] | None, *,
+                   ok: Callable[[dict[str, Any]], bool],
+                   lost: Callable[[Any, str], dict[str, Any]]) -> Iterator[dict[str, Any]]:
+    """``fn(job)`` for every job on the cluster, each row as it comes back (the one module
+    that speaks to dask.distributed: batch and batch --check both go through here). A task
+    lost for good (KilledWorker after ``retries``) becomes ``lost(job, why)``; ``ok`` says
+    which rows count as done and which as failed."""
     from distributed import as_completed
 
-    futures = {client.submit(run_job, job, retries=retries, pure=False,
-                             key=f"imucal-{i}-{job.sha256[:12]}"): job
-               for i, job in enumerate(todo)}
+    futures = {client.submit(fn, job, retries=retries, pure=False, key=key): job
+               for job, key in zip(jobs, keys)}
     for fut in as_completed(futures):
         job = futures[fut]
         try:
             row = fut.result()
         except Exception as e:  # the task was lost for good (KilledWorker after retries)
-            row = job.row() | {"status": "error",
-                               "error": f"lost on the cluster: {e.__class__.__name__}: {e}"}
+            row = lost(job, f"lost on the cluster: {e.__class__.__name__}: {e}")
         fut.release()
-        if row["status"] == "ok":
+        if ok(row):
             counts.done += 1
         else:
             counts.failed += 1

@@ -12,14 +12,14 @@ device: drifted when a recording of it says so, else holds when one does, else c
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from imucal.errors import ImucalError
 from imucal.fleet import naming
-from imucal.fleet.batch import Counts, cluster_client, local_workers
+from imucal.fleet.batch import Counts, cluster_client, local_workers, run_on_cluster
 
 HOLDS, DRIFTED, CANNOT_TELL, FAILED = "holds", "drifted", "cannot tell", "failed"
 LEVELS = (HOLDS, DRIFTED, CANNOT_TELL, FAILED)
@@ -173,34 +173,14 @@ def run_check(files: list[Path], store: Path, *, load_kw: dict[str, Any],
     if jobs:
         with cluster_client(scheduler, workers) as (client, where):
             where += capped
-            rows += list(_gather(client, jobs, retries, counts, progress))
+            rows += list(run_on_cluster(
+                client, run_check_job, jobs, [f"imucal-check-{i}" for i in range(len(jobs))],
+                retries, counts, progress, ok=lambda row: row["verdict"] != FAILED,
+                lost=lambda job, why: job.row() | {"verdict": FAILED, "error": why}))
     rows.sort(key=lambda r: (r["device"] or "", r["path"]))
     if progress is not None:
         progress(counts)
     return CheckReport(rows=rows, devices=by_device(rows), cluster=where)
-
-
-def _gather(client, jobs: list[CheckJob], retries: int, counts: Counts,
-            progress: Callable[[Counts], None] | None) -> Iterator[dict[str, Any]]:
-    from distributed import as_completed
-
-    futures = {client.submit(run_check_job, job, retries=retries, pure=False,
-                             key=f"imucal-check-{i}"): job for i, job in enumerate(jobs)}
-    for fut in as_completed(futures):
-        job = futures[fut]
-        try:
-            row = fut.result()
-        except Exception as e:  # lost for good (KilledWorker after retries)
-            row = job.row() | {"verdict": FAILED,
-                               "error": f"lost on the cluster: {e.__class__.__name__}: {e}"}
-        fut.release()
-        if row["verdict"] == FAILED:
-            counts.failed += 1
-        else:
-            counts.done += 1
-        if progress is not None:
-            progress(counts)
-        yield row
 
 
 def check_lines(report: CheckReport) -> list[str]:
