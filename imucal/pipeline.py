@@ -171,7 +171,7 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                  functools.partial(_up_moved, det.means, segments))
     if magnetometer is not None:  # Result.calibrated and --calibrated then hold mx, my, mz
         calibration = dataclasses.replace(calibration, mag=MagModel(
-            M=magnetometer.M, b=magnetometer.b, unit=magnetometer.unit,
+            M=magnetometer.M, b=magnetometer.b, unit=magnetometer.unit, field=magnetometer.field,
             R_am=np.eye(3) if magnetometer.R_am is None else magnetometer.R_am))
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,

@@ -231,6 +231,10 @@ def apply(
     out: Annotated[str, typer.Option(
         "--out", "-o", metavar="OUT.parquet|.csv|.mat", show_default=False,
         help="Calibrated signals to write; the format follows the name.")],
+    mag_unit: Annotated[str, typer.Option(
+        "--mag-unit", metavar="field|norm", callback=_one_of("field", "norm"),
+        help="The magnetometer's mx, my, mz in the field's own unit, or divided by the "
+             "calibrated field's norm (|m| = 1).")] = "field",
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -260,6 +264,8 @@ def apply(
                                        **load_kw)
         with progress.stage("applying"):
             signals = cal.apply(sess)
+            if mag_unit == "norm":
+                signals = signals.mag_normalised(cal, str(calibration))
         with progress.stage(f"writing {out}"):
             write_signals(tx, out, signals)
         tx.commit()
@@ -277,7 +283,7 @@ def apply(
              f"output          accelerometer in {signals.acc_unit} (median |a| "
              f"{float(np.median(norm)):.5g}, |g| = {cal.g:g})"
              + (", gyroscope in rad/s" if signals.gyro is not None else "")
-             + _mag_output(out, signals)]
+             + _mag_output(out, signals, mag_unit)]
     if sess.has_gyro and signals.gyro is None:
         lines.append("warnings:\n  - the calibration has no gyroscope model: gyroscope not "
                      "written")
@@ -289,7 +295,7 @@ def apply(
     print("\n".join(lines))
 
 
-def _mag_output(out: str | Path, signals) -> str:
+def _mag_output(out: str | Path, signals, mag_unit: str = "field") -> str:
     """What became of the magnetometer: calibrated (M8) beside the others, or kept out of a
     table because its clock is its own."""
     from imucal.io.export import mag_rows
@@ -297,7 +303,8 @@ def _mag_output(out: str | Path, signals) -> str:
     if signals.mag is None:
         return ""
     if Path(out).suffix.lower() == ".mat" or mag_rows(signals) is not None:
-        return ", magnetometer (mx, my, mz) in its raw unit"
+        return (", magnetometer (mx, my, mz) " + ("in its raw unit" if mag_unit == "field"
+                                                  else "in units of the calibrated field"))
     return (", magnetometer not written: its clock is its own (write OUT.mat for its "
             "mag and t_mag)")
 
