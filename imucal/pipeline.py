@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from imucal.errors import ImucalError, plural
-from imucal.models import SensorModel
+from imucal.models import SensorModel, acc_model, acc_theta
 from imucal.numerics.directions import distinct_orientations
 from imucal.result import Result, Segment, Triad
 from imucal.session import STANDARD_GRAVITY, Session, validate
@@ -40,6 +40,7 @@ from imucal.stages.group import block_mean_variance, group_blocks
 from imucal.stages.guide import ADVISED_HOLD_S, recording_guide
 from imucal.stages.gyro import calibrate_gyroscope
 from imucal.stages.mag import MagFit, MagUnfit, calibrate_magnetometer
+from imucal.stages.mag_align import Turns
 from imucal.stages.quality import quality_figures
 from imucal.stages.sanity import (
     coverage_warning,
@@ -174,10 +175,12 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
                                     s.orientations) for s in segments], guide, drifts)
     # the segments' blocks, in the order of ``up`` (the segments cover the blocks in order)
     seg_times = np.concatenate([block_times[s.blocks[0]:s.blocks[1]] for s in segments])
-    magnetometer = _magnetometer(session, seg_times, up, warnings)
+    magnetometer = _magnetometer(session, seg_times, up, warnings,
+                                 functools.partial(_gyro_turns, session, segments, block_times),
+                                 functools.partial(_up_moved, det.means, segments))
     if magnetometer is not None:  # Result.calibrated and --calibrated then hold mx, my, mz
         calibration = dataclasses.replace(calibration, mag=MagModel(
-            M=magnetometer.M, b=magnetometer.b, unit=magnetometer.unit,
+            M=magnetometer.M, b=magnetometer.b, unit=magnetometer.unit, field=magnetometer.field,
             R_am=np.eye(3) if magnetometer.R_am is None else magnetometer.R_am))
     return Result(session=session, settings=settings, detection=det, block_times=block_times,
                   whole=whole, grouping=grouping, segments=segments, calibration=calibration,
@@ -186,16 +189,19 @@ def calibrate(session: Session, settings: Settings | None = None, **overrides) -
 
 
 def _magnetometer(session: Session, block_times: np.ndarray, up: np.ndarray,
-                  warnings: list[RunWarning]) -> MagFit | None:
+                  warnings: list[RunWarning], turns: Callable[[], Turns | None],
+                  up_moved: Callable[[], np.ndarray]) -> MagFit | None:
     """The session's magnetometer (its first "mag" stream: the one ``--mag`` names is put
     first on load) calibrated over the whole session (M8, stages/mag.py), with the still
-    blocks' calibrated gravity for its rotation to the accelerometer; what it found said in
-    ``warnings``. None without a magnetometer, or when it cannot be calibrated (said)."""
+    blocks' calibrated gravity and the calibrated gyroscope's ``turns()`` between them
+    (M8t) for its rotation to the accelerometer, the accelerometer's errors carried through
+    (``up_moved()``); what it found said in ``warnings``. None
+    without a magnetometer, or when it cannot be calibrated (said)."""
     stream = session.magnetometer
     if stream is None:
         return None
     try:
-        fit = calibrate_magnetometer(stream, block_times, up)
+        fit = calibrate_magnetometer(stream, block_times, up, turns(), up_moved())
     except MagUnfit as e:
         if e.disturbances:
             warnings.append(RunWarning("mag_disturbed", "the magnetic field was not constant: "
@@ -205,6 +211,73 @@ def _magnetometer(session: Session, block_times: np.ndarray, up: np.ndarray,
         return None
     warnings.extend(fit.warnings)
     return fit
+
+
+def _gyro_turns(session: Session, segments: Sequence[Segment], block_times: np.ndarray
+                ) -> Turns | None:
+    """The turns between consecutive still blocks of each segment whose gyroscope is
+    calibrated and determined, as M8t takes them: the blocks' indices in the order of the
+    segments' blocks, each turn's rotation under the segment's M4 (M5's RK4, the
+    gyroscope's own integrator) and again with each of M4's parameters moved by its standard
+    error. Turns M4's fit left out (saturated, no data) are left out; None without any."""
+    from imucal.stages.gyro_transitions import Transitions, gyro_model_of
+
+    pairs, qs, moved = [], [], []
+    offset = 0
+    for s in segments:
+        n = s.blocks[1] - s.blocks[0]
+        g = s.gyro
+        if g is not None and n > 1 and not g.undetermined and np.all(np.isfinite(g.std)):
+            tr = Transitions(session.gyro, session.t_gyro, block_times[s.blocks[0]:s.blocks[1]])
+            k = np.flatnonzero(~g.excluded)
+            theta = g.report.theta
+            # std is in raw units (gyro._standard_errors): back to the fit's own parameters
+            scale = np.r_[np.ones(6), np.full(3, 1 / g.nominal_scale),
+                          np.full(len(theta) - 9, g.nominal_scale)]
+            models = [g.model] + [gyro_model_of(theta + d, g.static_bias, g.nominal_scale)
+                                  for d in _gyro_error_steps(g.report.jac, g.std * scale)]
+            q = tr.rotations_many(models)[:, k]
+            pairs.append(np.column_stack([offset + k, offset + k + 1]))
+            qs.append(q[0])
+            moved.append(q[1:])
+        offset += n
+    if not pairs:
+        return None
+    width = max(len(m) for m in moved)
+    if any(len(m) != width for m in moved):  # segments with and without a fitted bias
+        moved = [np.concatenate([m, np.repeat(q[None], width - len(m), 0)])
+                 for m, q in zip(moved, qs)]
+    return Turns(np.concatenate(pairs), np.concatenate(qs), np.concatenate(moved, axis=1))
+
+
+def _up_moved(means: np.ndarray, segments: Sequence[Segment]) -> np.ndarray:
+    """(J, B, 3) the segments' calibrated still means (``up``'s rows) with each segment's M2
+    moved by one of its error steps (:func:`_gyro_error_steps` of its covariance), the other
+    segments' as fitted: the accelerometer's errors, for the magnetometer to carry through."""
+    base = [s.acc.model.apply(means[s.blocks[0]:s.blocks[1]]) for s in segments]
+    out = []
+    for i, s in enumerate(segments):
+        cov = np.asarray(s.acc.cov, float)
+        if not np.all(np.isfinite(cov)):
+            continue
+        w, V = np.linalg.eigh((cov + cov.T) / 2)
+        theta = acc_theta(s.acc.model)
+        for d in (V * np.sqrt(np.maximum(w, 0.0))).T:
+            moved = acc_model(theta + d).apply(means[s.blocks[0]:s.blocks[1]])
+            out.append(np.concatenate(base[:i] + [moved] + base[i + 1:]))
+    return np.array(out).reshape(len(out), -1, 3)
+
+
+def _gyro_error_steps(jac: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """(p, p) steps of M4's parameters whose outer products sum to their covariance: the
+    standard errors ``std`` the gyroscope's fit reports, with the correlations of its data
+    Jacobian's normal matrix (the scales and misalignments of one axis pull together), as
+    the principal axes scaled by their standard deviations."""
+    d = 1.0 / np.maximum(np.linalg.norm(jac, axis=0), 1e-300)
+    N = np.linalg.pinv((jac * d).T @ (jac * d))
+    corr = N / np.sqrt(np.outer(np.diag(N), np.diag(N)))
+    w, V = np.linalg.eigh(corr * np.outer(std, std))
+    return (V * np.sqrt(np.maximum(w, 0.0))).T
 
 
 @dataclasses.dataclass(frozen=True)

@@ -159,6 +159,8 @@ def _magnetometer(result: Result) -> tuple[Line, ...]:
         return (Line("magnetometer", why[0] if why else f"{stream.name}: not calibrated"),)
     q, unit = fit.quality, fit.unit or "raw units"
     dip = "" if fit.dip_deg is None else f", dip {fit.dip_deg:.1f} deg"
+    if fit.alignment is not None:  # what determined R_am (M8, M8t)
+        dip += f", rotation from the {fit.alignment.evidence}"
     held = ("" if q.norm_rms_held_out_pct is None
             else f" ({fmt(q.norm_rms_held_out_pct, '.2g')} % held out)")
     left = (f"; {len(fit.disturbances)} disturbed interval(s) left out"

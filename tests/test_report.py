@@ -133,4 +133,5 @@ def test_the_magnetometer_in_a_line_of_the_overview():
     assert line.startswith(f"{fit.stream}: field {fit.field:.4g}")
     assert abs(fit.field - 0.5) < 0.01  # synth's field, gauss
     assert f"dip {fit.dip_deg:.1f} deg" in line and abs(fit.dip_deg - 65.0) < 0.5
+    assert ", rotation from the still blocks and turns;" in line  # M8 and M8t
     assert f"{fit.quality.coverage:.0%} of directions reached" in line

@@ -182,6 +182,10 @@ def mag_note(fit: MagFit) -> str:
              + ("" if q.missing is None else f"; {q.missing}")]
     if q.dip_spread_deg is not None:
         lines.append(f"- dip spread over {q.blocks} still blocks {q.dip_spread_deg:.3g} deg")
+    if (a := fit.alignment) is not None:
+        lines.append(f"- rotation to the accelerometer from the {a.evidence}"
+                     + ("" if not a.turns else f" ({a.turns} turns, {a.turns_share:.0%} of "
+                        "its information)"))
     left = fit.samples - int(fit.used.sum())
     if fit.disturbances:
         lines.append(f"- left out ({left} samples): "

@@ -254,6 +254,10 @@ def apply(
         "--reference", metavar="NAME", show_default=False,
         help="Write every triad in this triad's frame (a2, a stream or IMU name) [default: "
              "the calibration's reference].")] = None,
+    mag_unit: Annotated[str, typer.Option(
+        "--mag-unit", metavar="field|norm", callback=_one_of("field", "norm"),
+        help="The magnetometer's mx, my, mz in the field's own unit, or divided by the "
+             "calibrated field's norm (|m| = 1).")] = "field",
     options: dict[str, Any] = None,  # INPUT_OPTIONS
     verbose: VerboseOpt = False,
 ) -> None:
@@ -285,6 +289,8 @@ def apply(
             from imucal.cli.apply_triads import applied
 
             signals, triad_lines = applied(cal, calibration, sess, reference)
+            if mag_unit == "norm":
+                signals = signals.mag_normalised(cal, str(calibration))
         with progress.stage(f"writing {out}"):
             write_signals(tx, out, signals)
         tx.commit()
@@ -302,7 +308,7 @@ def apply(
              f"output          accelerometer in {signals.acc_unit} (median |a| "
              f"{float(np.median(norm)):.5g}, |g| = {cal.g:g})"
              + (", gyroscope in rad/s" if signals.gyro is not None else "")
-             + _mag_output(out, signals)]
+             + _mag_output(out, signals, mag_unit)]
     lines += triad_lines
     if sess.has_gyro and signals.gyro is None:
         lines.append("warnings:\n  - the calibration has no gyroscope model: gyroscope not "
@@ -315,7 +321,7 @@ def apply(
     print("\n".join(lines))
 
 
-def _mag_output(out: str | Path, signals) -> str:
+def _mag_output(out: str | Path, signals, mag_unit: str = "field") -> str:
     """What became of the magnetometer: calibrated (M8) beside the others, or kept out of a
     table because its clock is its own."""
     from imucal.io.export import mag_rows
@@ -323,7 +329,8 @@ def _mag_output(out: str | Path, signals) -> str:
     if signals.mag is None:
         return ""
     if Path(out).suffix.lower() == ".mat" or mag_rows(signals) is not None:
-        return ", magnetometer (mx, my, mz) in its raw unit"
+        return (", magnetometer (mx, my, mz) " + ("in its raw unit" if mag_unit == "field"
+                                                  else "in units of the calibrated field"))
     return (", magnetometer not written: its clock is its own (write OUT.mat for its "
             "mag and t_mag)")
 

@@ -20,6 +20,10 @@ MAG_MODEL = ("m = R_am M (m_raw - b) (imucal M8): b the hard iron and M the soft
              "det M = 1) in the raw unit, so |m| = field in the raw unit; R_am the rotation from "
              "the magnetometer's corrected frame to the accelerometer's calibrated frame (M2's); "
              "u . m / field = -sin(dip) for the calibrated accelerometer's up u when still. "
+             "R_am and the dip from the still blocks and, where the gyroscope is calibrated, "
+             "from the turns between them (R_am h_k = R_k^T R_am h_(k-1), h the corrected "
+             "field's direction, R_k the calibrated gyroscope's integrated rotation: M8t) in "
+             "one weighted fit; R_am_from says which evidence determined R_am. "
              "std.R_am_deg: small rotations about the accelerometer's x, y, z axes. Fitted over "
              "the whole session.")
 
@@ -41,6 +45,7 @@ def magnetometer_section(result: Result) -> dict:
         "model": MAG_MODEL, "stream": fit.stream, "unit": fit.unit, "calibrated": True,
         "M": _fl(fit.M), "b": _fl(fit.b),
         "R_am": None if fit.R_am is None else _fl(fit.R_am),
+        "R_am_from": None if fit.alignment is None else _alignment(fit.alignment.to_dict()),
         "field": _f(fit.field), "dip_deg": _f(fit.dip_deg),
         "std": {"M": _fl(fit.std_M), "b": _fl(fit.std_b), "field": _f(fit.std_field),
                 "dip_deg": _f(fit.std_dip_deg),
@@ -55,6 +60,11 @@ def magnetometer_section(result: Result) -> dict:
         "samples": fit.samples, "samples_used": int(fit.used.sum()), "start": fit.start,
         "soft_iron_estimated": fit.soft_iron,
         "disturbances": [d.to_dict() for d in fit.disturbances]}}
+
+
+def _alignment(d: dict) -> dict:
+    """What determined R_am (imucal.stages.mag_align.Alignment), its figures JSON numbers."""
+    return {k: _f(v) if isinstance(v, float) else v for k, v in d.items()}
 
 
 def temperature_section(result: Result) -> dict:

@@ -9,7 +9,7 @@ so a one-segment calibration applies to any later recording of the same device.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -22,12 +22,14 @@ from imucal.session import Session
 @dataclass(frozen=True)
 class MagModel:
     """The magnetometer's M8 (stages/mag.py) as applying it needs: ``m = R_am M (m_raw - b)``
-    in the raw unit ``unit`` (None: unstated), over the whole session."""
+    in the raw unit ``unit`` (None: unstated), over the whole session; ``field`` the local
+    field's norm F in that unit (None: a file that does not state it)."""
 
     M: np.ndarray
     b: np.ndarray
     R_am: np.ndarray  # the identity where the rotation was not estimated
     unit: str | None = None
+    field: float | None = None
 
     def apply(self, raw: np.ndarray) -> np.ndarray:
         return (np.asarray(raw, float) - self.b) @ (self.R_am @ self.M).T
@@ -74,7 +76,8 @@ class Calibration:
                          for seg in self.segments],
         } | ({} if self.mag is None else {"magnetometer": {
             "calibrated": True, "unit": self.mag.unit, "M": self.mag.M.tolist(),
-            "b": self.mag.b.tolist(), "R_am": self.mag.R_am.tolist()}})
+            "b": self.mag.b.tolist(), "R_am": self.mag.R_am.tolist()}
+            | ({} if self.mag.field is None else {"field": float(self.mag.field)})})
 
     @classmethod
     def from_dict(cls, data: dict) -> Calibration:
@@ -161,6 +164,17 @@ class CalibratedSignals:
     # More columns on the accelerometer's rows (the other triads a2x…, g2x…, the combined
     # acx…, temp: stages/apply_triads.py), in the order written; empty for one triad.
     columns: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def mag_normalised(self, cal: Calibration, source: str) -> CalibratedSignals:
+        """The same signals with the magnetometer divided by the calibration's field F
+        (``|m| = 1`` where the field is the one calibrated: ``--mag-unit norm``)."""
+        if self.mag is None:
+            return self
+        if cal.mag is None or cal.mag.field is None:
+            raise ImucalError("the calibration states no field norm to normalise the "
+                              "magnetometer by (expected its magnetometer section's field)",
+                              source=source, field="magnetometer field")
+        return replace(self, mag=self.mag / cal.mag.field)
 
     @property
     def acc_norm(self) -> np.ndarray:
@@ -288,8 +302,12 @@ def _mag_model(d: Any) -> MagModel | None:
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
         raise ValueError("R_am must be a rotation")
     unit = d.get("unit")
+    field = d.get("field")
+    if field is not None and (_number(field, "field") <= 0):
+        raise ValueError(f"field must be a positive number, got {field!r}")
     return MagModel(M=arrays["M"], b=arrays["b"], R_am=R,
-                    unit=unit if isinstance(unit, str) else None)
+                    unit=unit if isinstance(unit, str) else None,
+                    field=None if field is None else float(field))
 
 
 def _number(x: Any, what: str) -> float:

@@ -60,6 +60,16 @@ from imucal.numerics.ellipsoid import (
 )
 from imucal.numerics.windows import runs_of_true, samples_within
 from imucal.stages.accel_cv import axis_words
+from imucal.stages.mag_align import (
+    MIN_BLOCKS_WITH_TURNS,
+    MIN_TURNS,
+    Alignment,
+    Turns,
+    closed_form,
+    fit_with_turns,
+)
+from imucal.stages.mag_align import rotation as _rotation
+from imucal.stages.mag_align import unit as _unit
 from imucal.streams import Stream
 from imucal.warning import RunWarning
 
@@ -89,7 +99,12 @@ STEP_FLOOR = 0.03
 DIP_K = 6.0
 DIP_FLOOR_DEG = 0.5
 MIN_BLOCK_SAMPLES = 3
-MIN_BLOCKS = 6  # still blocks with magnetometer samples that R_am and the dip need
+# Still blocks with magnetometer samples that R_am and the dip need from them alone: M8's closed
+# form has ten unknowns (R_am's nine entries and sin(dip)); with six to nine blocks its null
+# space has several dimensions, and the refinement started in it landed 117-176 deg from the
+# truth (or the dip 50 deg off) on 6 of 12 synthetic sessions tried with 6 or 8 blocks
+# (tests/stages/test_mag_turns.py).
+MIN_BLOCKS = 10
 COVERAGE_ANGLE_DEG = 15.0  # a field direction is covered by a sample within this angle
 GOOD_COVERAGE = 0.9
 
@@ -176,6 +191,8 @@ class MagFit:
     # (B, 2) [t_start, t_end] (s) of the still blocks that block_dip_deg and block_used follow
     # (the stream's clock); None when no blocks were given
     block_times: np.ndarray | None = None
+    # what determined R_am: the still blocks, the gyroscope's turns or both (None without R_am)
+    alignment: Alignment | None = None
 
     @property
     def G(self) -> np.ndarray:
@@ -358,10 +375,6 @@ def _closed_form_rotation(u: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, flo
     return R, float(np.clip(s, -1.0, 1.0))
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def _block_residuals(p: np.ndarray, R0: np.ndarray, raw_means: np.ndarray, u: np.ndarray
                      ) -> np.ndarray:
     """``u_k . exp([d]x) R0 h_k + sin(dip)`` for ``p = (g6, b3, d3, dip)``."""
@@ -413,6 +426,27 @@ def _sequential(fit: EllipsoidFit, R0: np.ndarray, dip0: float, raw_means: np.nd
     cov[9:, :9] = A @ C11
     cov[:9, 9:] = cov[9:, :9].T
     return p, R, cov
+
+
+def _usable_turns(turns: Turns | None, ok: np.ndarray) -> Turns | None:
+    """The turns between usable blocks, their blocks renumbered among those (None: fewer than
+    MIN_TURNS)."""
+    if turns is None or not len(turns.pairs):
+        return None
+    pairs = np.asarray(turns.pairs, np.int64)
+    keep = ok[pairs[:, 0]] & ok[pairs[:, 1]]
+    if keep.sum() < MIN_TURNS:
+        return None
+    index = np.cumsum(ok) - 1
+    moved = turns.moved[:, keep] if len(turns.moved) else turns.moved
+    return Turns(index[pairs[keep]], turns.q[keep], moved)
+
+
+def _still_alignment(p: np.ndarray, R: np.ndarray, means: np.ndarray, u: np.ndarray
+                     ) -> Alignment:
+    r = _block_residuals(p, R, means, u)
+    return Alignment("still blocks", len(u), 0, 0.0,
+                     float(np.sqrt(r @ r / max(len(u) - 4, 1))), None, 0.0)
 
 
 def _inverse_normal(J: np.ndarray) -> np.ndarray:
@@ -501,11 +535,16 @@ def _missing_words(uncovered: np.ndarray, frame: str) -> str:
 
 
 def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None,
-                           up: np.ndarray | None = None) -> MagFit:
+                           up: np.ndarray | None = None, turns: Turns | None = None,
+                           up_moved: np.ndarray | None = None) -> MagFit:
     """Fit M8 to a magnetometer stream; ``block_times`` (B, 2) the still blocks' time
     intervals (the same clock as the stream's) and ``up`` (B, 3) the calibrated
-    accelerometer's mean in each (any unit) for ``R_am`` and the dip; without them, or with
-    fewer than MIN_BLOCKS usable blocks, ``R_am`` and the dip are not estimated."""
+    accelerometer's mean in each (any unit) for ``R_am`` and the dip; ``turns`` the calibrated
+    gyroscope's rotations between those blocks (M8t), fitted with them where MIN_TURNS or more
+    join usable blocks; ``up_moved`` (J, B, 3) ``up`` under the accelerometer's model moved
+    by each of its error steps (their outer products sum to its covariance), carried through
+    to R_am and the dip in that fit. Without blocks, or with fewer than MIN_BLOCKS usable blocks
+    (MIN_BLOCKS_WITH_TURNS with turns), ``R_am`` and the dip are not estimated."""
     x = np.asarray(stream.values, float)
     t = np.asarray(stream.t, float)
     finite = np.isfinite(x).all(axis=1) & np.isfinite(t)
@@ -534,6 +573,7 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
     xk, tk = x[keep], t[keep]
 
     B = 0 if block_times is None else len(block_times)
+    alignment = None
     block_dip = np.full(B, np.nan)
     block_used = np.zeros(B, bool)
     R = dip = heading = None
@@ -542,13 +582,27 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
         means, ok = _block_means(x, t, keep, np.asarray(block_times, float))
         u_all = _unit(np.asarray(up, float))
         for attempt in range(4):  # blocks whose dip departs are left out, the rest refitted
-            if ok.sum() < MIN_BLOCKS:
+            used_turns = _usable_turns(turns, ok)
+            need = MIN_BLOCKS if used_turns is None else MIN_BLOCKS_WITH_TURNS
+            if ok.sum() < need:
                 R = dip = None
                 break
             h = _unit((means[ok] - fit.c) @ fit.G)
             try:
-                R0, s0 = _closed_form_rotation(u_all[ok], h)
-                p, R, cov = _sequential(fit, R0, float(np.arcsin(s0)), means[ok], u_all[ok])
+                if used_turns is None:
+                    R0, s0 = _closed_form_rotation(u_all[ok], h)
+                    p, R, cov = _sequential(fit, R0, float(np.arcsin(s0)), means[ok],
+                                            u_all[ok])
+                    alignment = _still_alignment(p, R, means[ok], u_all[ok])
+                else:
+                    Qt = np.transpose(quat.to_matrix(used_turns.q), (0, 2, 1))
+                    R0, s0 = closed_form(u_all[ok], h, used_turns.pairs[:, 0],
+                                         used_turns.pairs[:, 1], Qt)
+                    p, R, cov, alignment = fit_with_turns(fit.params, fit.cov, R0,
+                                                          float(np.arcsin(s0)), means[ok],
+                                                          u_all[ok], used_turns,
+                                                          None if up_moved is None else
+                                                          _unit(np.asarray(up_moved)[:, ok]))
             except (ValueError, np.linalg.LinAlgError) as e:  # blocks that determine nothing
                 R = dip = None
                 warnings.append(RunWarning("mag_no_alignment", "the rotation to the "
@@ -579,7 +633,8 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
         elif not any(w.code == "mag_no_alignment" for w in warnings):
             warnings.append(RunWarning(
                 "mag_no_alignment", f"only {int(ok.sum())} still blocks hold undisturbed "
-                f"magnetometer samples ({MIN_BLOCKS} needed): the rotation to the "
+                f"magnetometer samples ({MIN_BLOCKS} needed, {MIN_BLOCKS_WITH_TURNS} with "
+                f"{MIN_TURNS} turns of a calibrated gyroscope): the rotation to the "
                 "accelerometer and the dip are not estimated"))
     if R is None:
         cov_out = fit.cov
@@ -628,7 +683,7 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
                   stream=stream.name, samples=len(stream.t), used=_full_mask(finite, keep),
                   start=fit.start, disturbances=tuple(disturbances), quality=quality,
                   block_dip_deg=block_dip, block_used=block_used, warnings=tuple(warnings),
-                  soft_iron=fit.model != "sphere",
+                  soft_iron=fit.model != "sphere", alignment=None if R is None else alignment,
                   block_times=None if block_times is None
                   else np.array(block_times, float).reshape(-1, 2))
 
@@ -637,9 +692,3 @@ def _full_mask(finite: np.ndarray, keep: np.ndarray) -> np.ndarray:
     out = np.zeros(len(finite), bool)
     out[np.flatnonzero(finite)[keep]] = True
     return out
-
-
-def _rotation(v: np.ndarray) -> np.ndarray:
-    """The rotation matrix of a rotation vector (scipy's Rotation would cost every run the
-    import of scipy.spatial)."""
-    return quat.to_matrix(quat.from_rotvec(np.asarray(v, float)))
