@@ -66,7 +66,7 @@ def test_all_static_and_no_static():
         try:
             imucal.calibrate(Session(acc=acc, t_acc=t))
         except imucal.ImucalError as e:
-            assert "found 1 static blocks" in str(e) and word in str(e)
+            assert "found 1 static block of" in str(e) and word in str(e)
         else:
             raise AssertionError("an all-still session must be refused")
     moving = still.copy()
