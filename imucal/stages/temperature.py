@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imucal.errors import plural
 from imucal.models import SensorModel, acc_model, acc_theta
 from imucal.numerics.windows import samples_within
 
@@ -124,6 +125,32 @@ def _design(x: np.ndarray, order: int) -> np.ndarray:
     return np.vander(x, order + 1, increasing=True)
 
 
+# A gyroscope block whose mean lies this many times the blocks' median distance from the
+# others' polynomial is not still: a turn's start or end inside it (method.md §12).
+OUTLIER_TIMES = 5.0
+
+
+def _still_enough(temps: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(B,) False for a block whose bias sample ``d`` is far from a polynomial through the
+    others (the highest order their temperatures allow, up to 3): beyond ``OUTLIER_TIMES``
+    times the median distance, the median taken so that a hysteresis shifting half the blocks
+    raises the bar rather than cutting them. Twice, as the polynomial moves without them."""
+    keep = np.ones(len(temps), bool)
+    p = min(3, _levels(temps) - 1, len(temps) - 5)
+    if p < 0:
+        return keep
+    half = max(float(np.ptp(temps)) / 2, 1e-6)
+    x = (temps - float(temps.min()) - half) / half
+    for _ in range(2):
+        coef, *_ = np.linalg.lstsq(_design(x[keep], p), d[keep], rcond=None)
+        dist = np.linalg.norm(d - _design(x, p) @ coef, axis=1)
+        new = dist <= OUTLIER_TIMES * float(np.median(dist[keep]))
+        if np.array_equal(new, keep) or new.sum() < len(temps) // 2:
+            break
+        keep = new
+    return keep
+
+
 def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
                         sensor: str, legs: np.ndarray | None = None) -> BiasPolynomial | None:
     """M16 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
@@ -132,6 +159,8 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
     the range and none is extrapolated); None without two blocks of known temperature.
     ``legs`` (per block, :func:`block_legs`) is kept beside the data points."""
     ok = np.isfinite(temps) & np.all(np.isfinite(d), axis=1)
+    moved = ~_still_enough(temps[ok], d[ok])
+    ok[np.flatnonzero(ok)[moved]] = False
     temps, d = temps[ok], d[ok]
     b = len(temps)
     if b < 2:
@@ -153,6 +182,12 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
             err[test] = d[test] - _design(x[test], p) @ coef
         cv[p] = float(np.sqrt(np.mean(err**2)))
     notes = []
+    if moved.any():
+        notes.append(f"{sensor}: {plural(int(moved.sum()), 'still block')} left out: "
+                     f"{'its' if moved.sum() == 1 else 'their'} mean lies beyond "
+                     f"{OUTLIER_TIMES:g} times the blocks' median distance from a polynomial "
+                     "through the others (the sensor turned in it: a block found by a noisier "
+                     "accelerometer)")
     if np.all(np.isnan(cv)):
         order = 0
         notes.append(f"{sensor}: {b} still blocks with a temperature: too few to choose an "
