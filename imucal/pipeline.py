@@ -74,7 +74,7 @@ from imucal.stages.triads import (
 )
 from imucal.stages.verdict import SegmentFigures, judge
 from imucal.streams import Stream
-from imucal.warning import RunWarning
+from imucal.warning import RunWarning, calibrated_beside
 
 
 def resolve_g(session: Session, g: float | None) -> tuple[float, float, str]:
@@ -477,7 +477,17 @@ def calibrate_triads(result: Result, which: Sequence[str] | str = "all",
     ref_turns = _turns(result, session, result.block_times)
     triads = [_one_triad(session, settings, s, ref, ref_raw, ref_models, result.block_times,
                          temperature, ref_turns) for s in accs]
-    return dataclasses.replace(result, triads=tuple(triads))
+    warnings = list(result.warnings)
+    for acc, tri in zip(accs, triads):  # the loader's "recorded, not calibrated" made true
+        if tri.result is None:
+            continue
+        warnings = calibrated_beside(warnings, acc.instance, "calibrated as a triad of its "
+                                     "own and turned to the reference (the triads section)")
+        if tri.gyro is not None and tri.result.segments[0].gyro is not None:
+            warnings = calibrated_beside(warnings, tri.gyro.split(" ", 1)[-1],
+                                         f"calibrated with {acc.instance}, its IMU's "
+                                         "accelerometer (the triads section)")
+    return dataclasses.replace(result, triads=tuple(triads), warnings=warnings)
 
 
 def _triad_models(result: Result, raw_means: np.ndarray, block_times: np.ndarray
@@ -720,7 +730,11 @@ def calibrate_temperature(result: Result) -> Result:
             f = dataclasses.replace(f, notes=f.notes + ((hyst,) if hyst else ()),
                                     hysteresis=hyst)
         out.append(dataclasses.replace(f, notes=said + f.notes))
-    return dataclasses.replace(result, temperature=tuple(out))
+    warnings = result.warnings
+    if out:
+        warnings = calibrated_beside(list(warnings), temp.instance, "each bias a polynomial "
+                                     "in it (the temperature section)")
+    return dataclasses.replace(result, temperature=tuple(out), warnings=warnings)
 
 
 def calibrate_same_device(results: Sequence[Result]) -> Result:
@@ -760,8 +774,13 @@ def calibrate_same_device(results: Sequence[Result]) -> Result:
     levels = ", ".join(f"{float(np.nanmean(t)):.1f}" for t in temps)
     said = (f"from {len(results)} sessions of one device at {levels} deg C (their still poses "
             "pooled, each at its own temperature)",)
-    return dataclasses.replace(first, temperature=tuple(
-        dataclasses.replace(f, notes=said + f.notes) for f in fits if f is not None))
+    out = tuple(dataclasses.replace(f, notes=said + f.notes) for f in fits if f is not None)
+    warnings = first.warnings
+    if out:
+        warnings = calibrated_beside(list(warnings), _temp_stream(first.session).instance,
+                                     "each bias a polynomial in it, with the other sessions' "
+                                     "(the temperature section)")
+    return dataclasses.replace(first, temperature=out, warnings=warnings)
 
 
 # --- the triads as one calibration to apply; a low-range and a high-range pair (M18) ------------

@@ -122,6 +122,10 @@ class TemperatureProfile:
     # The accelerometer's scales: K(T) = K (1 + acc_scale (T - ref)), relative per deg C.
     acc_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_hysteresis: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # The second triad's own (a2, and its IMU's gyroscope g2), as ``acc`` and ``gyro`` are the
+    # first's; empty: it does not drift.
+    acc2: tuple[tuple[float, float, float], ...] = ()
+    gyro2: tuple[tuple[float, float, float], ...] = ()
 
     def cooling(self, t: np.ndarray, duration: float) -> np.ndarray:
         """(N,) True where the temperature is falling (the second half of a ``back`` ramp)."""
@@ -148,6 +152,14 @@ class TemperatureProfile:
     def gyro_drift(self, temp: np.ndarray) -> np.ndarray:
         return self._poly(self.gyro, np.asarray(temp) - self.ref)
 
+    def acc2_drift(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the second triad's bias change at ``temp``, g."""
+        return self._poly(self.acc2, np.asarray(temp) - self.ref)
+
+    def gyro2_drift(self, temp: np.ndarray) -> np.ndarray:
+        """(N, 3) the second triad's gyroscope's bias change at ``temp``, rad/s."""
+        return self._poly(self.gyro2, np.asarray(temp) - self.ref)
+
     def to_dict(self) -> dict:
         return {"start_degC": self.start, "end_degC": self.end, "steps": self.steps,
                 "back": self.back, "acc_hysteresis_g": list(self.acc_hysteresis),
@@ -155,6 +167,8 @@ class TemperatureProfile:
                 "gyro_hysteresis_rad_s": list(self.gyro_hysteresis),
                 "reference_degC": self.ref, "acc_bias_coefficients_g": [list(c) for c in self.acc],
                 "gyro_bias_coefficients_rad_s": [list(c) for c in self.gyro],
+                "a2_bias_coefficients_g": [list(c) for c in self.acc2],
+                "g2_bias_coefficients_rad_s": [list(c) for c in self.gyro2],
                 "model": "b(T) = b + sum_j c_j (T - reference)^j (method.md M16)"}
 
 
@@ -399,7 +413,7 @@ def make_session(
     specs = (second_acc,) if isinstance(second_acc, SecondTriad) else (second_acc or ())
     for i, spec in enumerate(specs):  # a2 (g2), a3 (g3), ...: each from a generator of its own
         streams, tt = _second_triad(motion, spec, seed, acc_rate, acc_unit, number=i + 2,
-                                    shake=shake, t_first=t_a)
+                                    shake=shake, t_first=t_a, temperature=temperature)
         others, triads = others + streams, triads + (tt,)
     if temp_stream is not None:
         if acc_unit == "counts" or gyro_unit == "counts":
@@ -499,9 +513,13 @@ def specific_force(motion: Motion, t: np.ndarray, shake: float, seed: int) -> np
 
 def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
                   acc_unit: str, number: int = 2, shake: float = 0.0,
-                  t_first: np.ndarray | None = None) -> tuple[tuple[Stream, ...], TriadTruth]:
+                  t_first: np.ndarray | None = None,
+                  temperature: TemperatureProfile | None = None
+                  ) -> tuple[tuple[Stream, ...], TriadTruth]:
     """The second accelerometer's stream (and its gyroscope's) and truth (method.md §11, M12:
-    ``u = R v``; the gyroscope in the same frame, so M14's rotation is ``R`` too)."""
+    ``u = R v``; the gyroscope in the same frame, so M14's rotation is ``R`` too). With
+    ``temperature``, the second triad (``number`` 2) drifts by its own coefficients
+    (``acc2``, ``gyro2``) at the device's temperature, drawn nothing more."""
     if acc_unit not in ("g", "m/s^2"):
         raise ValueError(f"a second triad is made in g or m/s^2, not {acc_unit!r}")
     rng = np.random.default_rng([seed, 2] if number == 2 else [seed, 2, number])
@@ -518,6 +536,9 @@ def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
     up = specific_force(motion, t, shake, seed) if shake else np.array([0.0, 0.0, 1.0])
     v = quat.rotate_inverse(q, up) @ R  # v = R' u, row by row
     raw = model.invert(v) + rng.normal(0, spec.noise, v.shape)
+    heat = None if temperature is None or number != 2 else temperature.at(t, duration)
+    if heat is not None:  # M16 for this triad: its own bias in temperature, in g
+        raw += temperature.acc2_drift(heat)
     raw = np.clip(raw, -spec.range_g, spec.range_g)  # the triad's range: flat beyond it
     g = STANDARD_GRAVITY if acc_unit == "m/s^2" else 1.0
     raw *= g
@@ -529,6 +550,8 @@ def _second_triad(motion: Motion, spec: SecondTriad, seed: int, acc_rate: float,
     if spec.gyro:  # drawn after everything above: the accelerometer is the same without it
         gyro = random_gyro_model(rng)
         raw_g = gyro.invert(w @ R) + rng.normal(0, spec.gyro_noise, w.shape)
+        if heat is not None:
+            raw_g += temperature.gyro2_drift(heat)
         streams += (Stream("gyro", g_name, t, raw_g, "rad/s", f"synthetic gyroscope {number} "
                            f"({g_name}x, {g_name}y, {g_name}z)", time_source="its own clock"),)
     return streams, TriadTruth(name=a, model=model, R=R, range=spec.range_g * g,

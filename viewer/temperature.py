@@ -13,6 +13,11 @@ apart (``BiasPolynomial.legs``: red heating, blue cooling, grey neither).
   the fitted polynomial, less ``b_0`` (deg/s for a gyroscope in rad/s);
 - the temperature over the session with each block's temperature on its leg (time series).
 
+Every other triad with its own fit (``Result.triads``, each on its IMU's temperature) is drawn
+beside the reference's: its accelerometer's ``b(T) - b_0`` as dotted curves in the axes'
+colours (``t2_bias_x``…), its gyroscope's points and fit in the triad's colour on each axis's
+plot (``t2_points``, ``t2_fit``), and its orders and coefficients in the note.
+
 Each series holds AnyValues ``degC`` and the values as logged. Nothing is logged without a
 bias in temperature.
 """
@@ -28,7 +33,17 @@ import rerun.blueprint as rrb
 from imucal.stages.temperature import block_legs, block_temperatures
 
 from . import paths as P
-from .columns import AFTER, BEFORE, GREY, MEASURED, XYZ, send_scalars, style_lines, style_points
+from .columns import (
+    AFTER,
+    BEFORE,
+    GREY,
+    MEASURED,
+    SEGMENT_COLORS,
+    XYZ,
+    send_scalars,
+    style_lines,
+    style_points,
+)
 from .decimate import SCREEN_ROWS, envelope
 from .layout import Box
 from .plot2d import Axis, Mark, Series, linear_axis, log_plot
@@ -49,6 +64,26 @@ def fit_of(result: Result | None, sensor: str) -> BiasPolynomial | None:
     if result is None:
         return None
     return next((f for f in result.temperature if f.sensor == sensor), None)
+
+
+def other_fits(result: Result | None, sensor: str) -> list[tuple[int, str, str | None,
+                                                                 BiasPolynomial]]:
+    """Each other triad's fit of ``sensor`` (number from 2 as in the Triads tab, its name,
+    its raw unit, the fit), in the triads' order."""
+    out = []
+    for i, tri in enumerate(() if result is None else result.triads, start=2):
+        fit = fit_of(tri.result, sensor)
+        if fit is not None:
+            s = tri.result.session
+            unit = s.acc_unit if sensor == "accelerometer" else s.gyro_unit
+            name = tri.name if sensor == "accelerometer" else (tri.gyro or tri.name)
+            out.append((i, name, unit, fit))
+    return out
+
+
+def triad_color(i: int) -> int:
+    """Triad ``i``'s colour (2: the second), apart from the reference's."""
+    return SEGMENT_COLORS[(i - 1) % len(SEGMENT_COLORS)]
 
 
 def plots(result: Result | None) -> tuple[list[str], list[str]]:
@@ -141,17 +176,18 @@ def log_temperature(result: Result, rec: rr.RecordingStream, rows: dict[str, int
     box = boxes(result)
     acc = fit_of(result, "accelerometer")
     if acc is not None:
-        _log_accelerometer(acc, result.session.acc_unit, box, rec)
+        _log_accelerometer(acc, result.session.acc_unit, box, rec,
+                           other_fits(result, "accelerometer"))
     gyro = fit_of(result, "gyroscope")
     if gyro is not None:
-        _log_gyroscope(gyro, result.session.gyro_unit, box, rec)
+        _log_gyroscope(gyro, result.session.gyro_unit, box, rec, other_fits(result, "gyroscope"))
     _log_time(result, rec, rows)
     rec.log(P.TEMP_NOTE, rr.TextDocument(temperature_note(result), media_type="text/markdown"),
             static=True)
 
 
 def _log_accelerometer(fit: BiasPolynomial, unit: str | None, box: dict[str, Box],
-                       rec: rr.RecordingStream) -> None:
+                       rec: rr.RecordingStream, others: list | None = None) -> None:
     shown, k = display(unit, "accelerometer")
     grid = _grid(fit)
     xa = _axis_x(fit)
@@ -159,7 +195,15 @@ def _log_accelerometer(fit: BiasPolynomial, unit: str | None, box: dict[str, Box
     path = P.temp_plot("accelerometer", "bias")
     series = [Series(f"bias_{a}", f"b{a}(T) − b0{a}", XYZ[i], grid, db[:, i], size=0.6,
                      values={"degC": grid, shown: db[:, i]}) for i, a in enumerate(AXES)]
-    log_plot(rec, path, box[path], xa, _axis_y([db]), series, _marks(fit))
+    ys = [db]
+    for n, name, o_unit, o in others or ():  # each other triad's, dotted, on the same grid
+        o_shown, o_k = display(o_unit, "accelerometer")
+        ob = (o.bias_at(grid) - o.b0) * o_k
+        ys.append(ob)
+        series += [Series(f"t{n}_bias_{a}", f"{name}: b{a}(T) − b0{a}", XYZ[i], grid, ob[:, i],
+                          line=False, size=1.2, values={"degC": grid, o_shown: ob[:, i]})
+                   for i, a in enumerate(AXES)]
+    log_plot(rec, path, box[path], xa, _axis_y(ys), series, _marks(fit))
     if fit.before_mg is not None and fit.temps is not None:
         path = P.temp_plot("accelerometer", "norm")
         series = _leg_series(fit, np.asarray(fit.before_mg), "constant_", "mg")
@@ -177,7 +221,7 @@ def _log_accelerometer(fit: BiasPolynomial, unit: str | None, box: dict[str, Box
 
 
 def _log_gyroscope(fit: BiasPolynomial, unit: str | None, box: dict[str, Box],
-                   rec: rr.RecordingStream) -> None:
+                   rec: rr.RecordingStream, others: list | None = None) -> None:
     shown, k = display(unit, "gyroscope")
     grid = _grid(fit)
     xa = _axis_x(fit)
@@ -190,6 +234,20 @@ def _log_gyroscope(fit: BiasPolynomial, unit: str | None, box: dict[str, Box],
         series.append(Series("fit", f"order {fit.order}", XYZ[i], grid, curve[:, i], size=0.6,
                              values={"degC": grid, shown: curve[:, i]}))
         ys = [curve[:, i]] + ([] if data is None else [data[:, i]])
+        for n, name, o_unit, o in others or ():  # each other triad's, in its colour
+            o_shown, o_k = display(o_unit, "gyroscope")
+            oc = (o.bias_at(grid) - o.b0)[:, i] * o_k
+            ys.append(oc)
+            pts = o.points()
+            if pts is not None:
+                op = (pts - o.b0)[:, i] * o_k
+                ys.append(op)
+                series.append(Series(f"t{n}_points", f"{name}: still blocks", triad_color(n),
+                                     o.temps, op, line=False, size=2.0,
+                                     values={"degC": o.temps, o_shown: op,
+                                             "block": np.asarray(o.used)}))
+            series.append(Series(f"t{n}_fit", f"{name}: order {o.order}", triad_color(n), grid,
+                                 oc, size=0.6, values={"degC": grid, o_shown: oc}))
         log_plot(rec, path, box[path], xa, _axis_y(ys), series, _marks(fit))
 
 
@@ -219,22 +277,33 @@ def temperature_note(result: Result) -> str:
     coefficients, hysteresis and what the core said."""
     lines = ["**Temperature** (method.md §12): bias in temperature, held constant outside the "
              "span seen", ""]
+    runs = [("", result)] + [(f"{tri.name}, ", tri.result) for tri in result.triads
+                             if tri.result is not None and tri.result.temperature]
+    for who, run in runs:
+        lines += _fit_lines(who, run)
+    notes = [(who, n) for who, run in runs for f in run.temperature for n in f.notes]
+    return "\n".join(lines + ([""] + [f"- {who}{n}" for who, n in notes] if notes else []))
+
+
+def _fit_lines(who: str, result: Result) -> list[str]:
+    """One run's fits in the note (``who``: the triad's name before the sensor's, or "" for
+    the reference's)."""
+    lines = []
     for f in result.temperature:
         acc = f.sensor == "accelerometer"
         unit = result.session.acc_unit if acc else result.session.gyro_unit
         cv = ", ".join(f"{p}: {v:.3g}" for p, v in enumerate(f.cv_rms) if np.isfinite(v))
         cv_unit = f"{result.calibration.acc_unit}, of |a| − g" if acc else unit
-        lines.append(f"- **{f.sensor}**: order {f.order} over {f.span[0]:.1f}–{f.span[1]:.1f} °C "
-                     f"({f.blocks} still blocks, T0 {f.t0:.1f} °C); held-out RMS per order "
-                     f"{cv or '–'} ({cv_unit})")
+        lines.append(f"- **{who}{f.sensor}**: order {f.order} over {f.span[0]:.1f}–"
+                     f"{f.span[1]:.1f} °C ({f.blocks} still blocks, T0 {f.t0:.1f} °C); held-out "
+                     f"RMS per order {cv or '–'} ({cv_unit})")
         for j, c in enumerate(f.coefs):
             lines.append(f"  - c{j}: " + ", ".join(f"{v:+.4g}" for v in c)
                          + f" {unit or 'raw'}/°C^{j}")
         if f.scale_slope is not None:
             lines.append("  - scales: " + ", ".join(f"{v * 1e6:+.0f}" for v in f.scale_slope)
                          + " ppm/°C")
-    notes = [n for f in result.temperature for n in f.notes]
-    return "\n".join(lines + ([""] + [f"- {n}" for n in notes] if notes else []))
+    return lines
 
 
 # --- the layout ---------------------------------------------------------------------------------

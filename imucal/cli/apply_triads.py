@@ -45,6 +45,24 @@ def applied(cal: Any, calibration: Path, session: Any, reference: str | None
     return signals, [f"triads          {head}"] + [f"  - {n}" for n in out.notes]
 
 
+def notes_applied(notes: list[str] | tuple[str, ...], columns: tuple[str, ...] | None
+                  ) -> list[str]:
+    """The loader's notes with those of a2x…, g2x…, temp made true where the output holds
+    them calibrated (the other triads' columns, the temperature passed through)."""
+    from imucal.warning import calibrated_note
+
+    have = set(columns or ())
+    out = []
+    for n in notes:
+        for c in have:
+            if c == "temp":
+                n = calibrated_note(n, "temp", "passed through as temp")
+            elif c.endswith("x") and {c[:-1] + "y", c[:-1] + "z"} <= have:
+                n = calibrated_note(n, c[:-1], f"calibrated, in the output's frame as {c}…")
+        out.append(n)
+    return out
+
+
 def stated_ranges(ranges: list[str] | None, triads: bool) -> dict[str, float]:
     """``--range NAME=G`` as {name: g}; a usage error for a malformed one, or without the
     other triads to pair (--all-imus, --triad)."""

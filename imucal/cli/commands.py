@@ -314,8 +314,10 @@ def apply(
         lines.append("warnings:\n  - the calibration has no gyroscope model: gyroscope not "
                      "written")
     if sess.notes:
+        from imucal.cli.apply_triads import notes_applied
+
         lines.append("notes:")
-        lines += [f"  - {n}" for n in sess.notes]
+        lines += [f"  - {n}" for n in notes_applied(sess.notes, signals.columns)]
     lines += [f"wrote {w}" for w in written_tables(Path(out), signals)]
     lines += removed_lines(tx.removed, signals)
     print("\n".join(lines))

@@ -9,6 +9,11 @@ from typing import Any
 
 from imucal.cli.options import usage_error
 
+# The second IMU's own drift with heat (g, rad/s per deg C^j about the ramp's middle): order 2
+# as the first's default, other coefficients, so each triad's fit is its own (method.md §12).
+ACC2_TEMP = ((-3e-4, 2e-4, 3e-4), (-1.2e-5, 8e-6, 1e-5))
+GYRO2_TEMP = ((-7e-5, 9e-5, -5e-5), (2e-6, 3e-6, -3e-6))
+
 
 def triad_kwargs(*, csv: bool, counts: bool, acc_range: float | None, shake: float,
                  acc2: float | None, acc2_rotation: float, gyro2: bool,
@@ -65,6 +70,9 @@ def triad_kwargs(*, csv: bool, counts: bool, acc_range: float | None, shake: flo
         if temp_gyro_bias is not None:  # deg/s per deg C -> rad/s per deg C
             kw["gyro"] = (tuple(math.radians(v) for v in _triple(temp_gyro_bias,
                                                                  "--temp-gyro-bias")),)
+        if acc2 is not None:  # the second IMU drifts too, by coefficients of its own
+            kw["acc2"] = ACC2_TEMP
+            kw["gyro2"] = GYRO2_TEMP if gyro2 else ()
         if temp_acc_scale is not None:  # ppm per deg C -> relative
             kw["acc_scale"] = tuple(v * 1e-6 for v in _triple(temp_acc_scale,
                                                               "--temp-acc-scale"))
@@ -86,5 +94,7 @@ def described(kwargs: dict[str, Any]) -> str:
     if "temperature" in kwargs:
         p = kwargs["temperature"]
         parts.append(f"temperature {p.start:g} to {p.end:g} deg C"
-                     + (f" in {p.steps} steps" if p.steps else " (ramp)"))
+                     + (f" in {p.steps} steps" if p.steps else " (ramp)")
+                    + (", a2" + (" and g2" if p.gyro2 else "") + " drifting by coefficients "
+                       "of their own" if p.acc2 else ""))
     return "".join(f", {p}" for p in parts)

@@ -48,6 +48,7 @@ from imucal.io.units import (
 from imucal.session import Session
 from imucal.stages.sanity import one_rate_pairing
 from imucal.streams import UNITS, Stream, StreamSet
+from imucal.warning import beside_note
 
 __all__ = ["load_session"]
 
@@ -202,9 +203,8 @@ def _extra_streams(opts: LoadOptions) -> list[Stream]:
                           np.ascontiguousarray(values, dtype=float), unit,
                           f"{part.source}: columns {roles}", time_source="the table's time"))
         # a magnetometer is calibrated over the whole session (stages/mag.py), the rest kept
-        what = ("calibrated on its own (the magnetometer's section)" if kind == "mag"
-                else "recorded, not calibrated")
-        opts.notes.append(f"{label} found beside the pair ({roles}: {len(t)} samples); {what}")
+        opts.notes.append(beside_note(label, roles, len(t), *(
+            ("calibrated on its own (the magnetometer's section)",) if kind == "mag" else ())))
     return out
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imucal.errors import plural
 from imucal.models import SensorModel, acc_model, acc_theta
 from imucal.numerics.windows import samples_within
 
@@ -124,6 +125,32 @@ def _design(x: np.ndarray, order: int) -> np.ndarray:
     return np.vander(x, order + 1, increasing=True)
 
 
+# A gyroscope block whose mean lies this many times the blocks' median distance from the
+# others' polynomial is not still: a turn's start or end inside it (method.md §12).
+OUTLIER_TIMES = 5.0
+
+
+def _still_enough(temps: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(B,) False for a block whose bias sample ``d`` is far from a polynomial through the
+    others (the highest order their temperatures allow, up to 3): beyond ``OUTLIER_TIMES``
+    times the median distance, the median taken so that a hysteresis shifting half the blocks
+    raises the bar rather than cutting them. Twice, as the polynomial moves without them."""
+    keep = np.ones(len(temps), bool)
+    p = min(3, _levels(temps) - 1, len(temps) - 5)
+    if p < 0:
+        return keep
+    half = max(float(np.ptp(temps)) / 2, 1e-6)
+    x = (temps - float(temps.min()) - half) / half
+    for _ in range(2):
+        coef, *_ = np.linalg.lstsq(_design(x[keep], p), d[keep], rcond=None)
+        dist = np.linalg.norm(d - _design(x, p) @ coef, axis=1)
+        new = dist <= OUTLIER_TIMES * float(np.median(dist[keep]))
+        if np.array_equal(new, keep) or new.sum() < len(temps) // 2:
+            break
+        keep = new
+    return keep
+
+
 def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
                         sensor: str, legs: np.ndarray | None = None) -> BiasPolynomial | None:
     """M16 fitted to bias samples ``d`` (B, 3) less ``b0`` (a gyroscope's still block means)
@@ -132,6 +159,8 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
     the range and none is extrapolated); None without two blocks of known temperature.
     ``legs`` (per block, :func:`block_legs`) is kept beside the data points."""
     ok = np.isfinite(temps) & np.all(np.isfinite(d), axis=1)
+    moved = ~_still_enough(temps[ok], d[ok])
+    ok[np.flatnonzero(ok)[moved]] = False
     temps, d = temps[ok], d[ok]
     b = len(temps)
     if b < 2:
@@ -153,6 +182,12 @@ def fit_bias_polynomial(temps: np.ndarray, d: np.ndarray, b0: np.ndarray,
             err[test] = d[test] - _design(x[test], p) @ coef
         cv[p] = float(np.sqrt(np.mean(err**2)))
     notes = []
+    if moved.any():
+        notes.append(f"{sensor}: {plural(int(moved.sum()), 'still block')} left out: "
+                     f"{'its' if moved.sum() == 1 else 'their'} mean lies beyond "
+                     f"{OUTLIER_TIMES:g} times the blocks' median distance from a polynomial "
+                     "through the others (the sensor turned in it: a block found by a noisier "
+                     "accelerometer)")
     if np.all(np.isnan(cv)):
         order = 0
         notes.append(f"{sensor}: {b} still blocks with a temperature: too few to choose an "
@@ -191,6 +226,30 @@ def _norm_jacobian(means: np.ndarray, params: np.ndarray, eps: float = 1e-7) -> 
     return out
 
 
+def _inside_others(temps: np.ndarray) -> np.ndarray:
+    """(B,) True where a block's temperature lies within the other blocks' span: held out,
+    it is interpolated, as the model is used (a block alone at an end of the span would be
+    extrapolated, which the model never is, method.md §12)."""
+    order = np.sort(temps)
+    lo = np.where(temps == order[0], order[1], order[0])  # the others' lowest
+    hi = np.where(temps == order[-1], order[-2], order[-1])  # the others' highest
+    return (temps >= lo) & (temps <= hi)
+
+
+def loo_residuals(a: np.ndarray, y: np.ndarray) -> np.ndarray | None:
+    """(B,) each row's leave-one-out residual of the least-squares fit ``a x = y``: its
+    in-sample residual over ``1 - h_kk`` (PRESS; ``h_kk`` the hat matrix's diagonal, exact
+    for a linear fit), None where some row alone determines a parameter (``h_kk`` = 1)."""
+    q, rr = np.linalg.qr(a)
+    if np.min(np.abs(np.diag(rr))) < 1e-10 * np.max(np.abs(np.diag(rr))):
+        return None  # rank-deficient: the data do not determine every unknown
+    h = np.sum(q**2, axis=1)
+    if np.max(h) > 1.0 - 1e-6:
+        return None
+    res = y - q @ (q.T @ y)
+    return res / (1.0 - h)
+
+
 def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                               models: list[SensorModel], g: float,
                               legs: np.ndarray | None = None) -> BiasPolynomial | None:
@@ -199,7 +258,10 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
     norm), so the polynomial is fitted to the blocks' norm residuals, linearised at the §3
     fit, together with a small correction of all of M2 (a drift the constant fit absorbed into
     a scale is given back): ``|u_k| - |g| + J_k dtheta + sum_j a_k (T_k - T_0)^j . c_j = 0``,
-    ``a_k = d|u_k| / db``. The order is chosen as :func:`fit_bias_polynomial` does. With
+    ``a_k = d|u_k| / db``. The order is chosen by leave-one-out cross-validation (PRESS,
+    :func:`loo_residuals`), scored on the blocks a held-out fit interpolates: with 9 + 3p
+    unknowns from one norm per block, five folds leave too few blocks to try order 2 from 20
+    poses (method.md §12). With
     ``legs`` (+1 heating, -1 cooling, 0 neither, per block), a bias step between the legs is
     fitted beside the chosen order and said (hysteresis)."""
     ok = np.isfinite(temps)
@@ -222,22 +284,23 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
         scale = [jac[rows, 3:6] * x[rows, None]] if slope else []
         return np.hstack([jac[rows], *poly, *scale])
 
-    fold = np.empty(b, int)
-    fold[np.argsort(temps, kind="stable")] = np.arange(b) % FOLDS
+    scored = _inside_others(temps)
+    # Both legs seen: the orders are compared with the legs' step (below) fitted beside each,
+    # else a hysteresis several times the noise drowns their differences (method.md §12).
+    two_legs = legs is not None and min((legs > 0).sum(), (legs < 0).sum()) >= MIN_LEG_BLOCKS
+    step = (jac[:, 6:9] * ((legs < 0).astype(float) - (legs > 0))[:, None] / 2 if two_legs
+            else np.zeros((b, 0)))
     # Candidates (order, scale slope), fewest unknowns first: the bias of order 0-3, each with
     # and without a linear slope of the scales (where the data determine one, method.md §12).
     candidates = sorted(((p, sl) for p in ORDERS for sl in (False, True)),
                         key=lambda c: (3 * c[0] + 3 * c[1], c[0]))
     cv_of: dict[tuple[int, bool], float] = {}
     for p, sl in candidates:
-        if b - int(np.ceil(b / FOLDS)) < 9 + 3 * p + 3 * sl + 2 or p + sl >= _levels(temps):
-            continue
-        err = np.empty(b)
-        for f in range(FOLDS):
-            test = fold == f
-            sol, *_ = np.linalg.lstsq(design(~test, p, sl), -r[~test], rcond=None)
-            err[test] = r[test] + design(test, p, sl) @ sol
-        cv_of[p, sl] = float(np.sqrt(np.mean(err**2)))
+        if b - 1 < 9 + 3 * p + 3 * sl + step.shape[1] + 2 or p + sl >= _levels(temps):
+            continue  # each training set (all blocks but one) must over-determine it
+        err = loo_residuals(np.hstack([design(np.ones(b, bool), p, sl), step]), -r)
+        if err is not None:
+            cv_of[p, sl] = float(np.sqrt(np.mean(err[scored] ** 2)))
     cv = np.array([cv_of.get((p, False), np.nan) for p in ORDERS])
     notes = []
     slope = False
@@ -249,6 +312,15 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
         best = min(cv_of.values())
         order, slope = next(c for c in candidates
                             if c in cv_of and cv_of[c] <= CV_TOLERANCE * best)
+        short = [p for p in ORDERS
+                 if b - 1 < 9 + 3 * p + step.shape[1] + 2 and p < _levels(temps)]
+        if short:  # said: the order chosen is the highest these blocks could test
+            p = short[0]
+            need = 9 + 3 * p + step.shape[1] + 3
+            notes.append(f"accelerometer: orders {p} and above not tried: {b} still blocks, "
+                         f"and order {p} needs {need} (M2's 9 parameters and 3 per order from "
+                         "one norm per block, one held out, two to spare); record more poses "
+                         "for it")
     full = design(np.ones(b, bool), order, slope)
     sol, *_ = np.linalg.lstsq(full, -r, rcond=None)
     dof = max(b - full.shape[1], 1)
@@ -264,8 +336,7 @@ def fit_accel_bias_polynomial(temps: np.ndarray, means: np.ndarray,
                      + ", ".join(f"{v * 1e6:+.0f}" for v in scale_slope)
                      + " ppm per deg C (x, y, z), which the still poses determine")
     hyst = None
-    if legs is not None and min((legs > 0).sum(), (legs < 0).sum()) >= MIN_LEG_BLOCKS:
-        step = jac[:, 6:9] * ((legs < 0).astype(float) - (legs > 0))[:, None] / 2
+    if two_legs:
         both = np.hstack([full, step])
         sol_h, *_ = np.linalg.lstsq(both, -r, rcond=None)
         ssr = float(np.sum((r + both @ sol_h) ** 2))

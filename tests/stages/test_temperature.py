@@ -14,6 +14,7 @@ from imucal.pipeline import calibrate, calibrate_temperature
 from imucal.report import report
 from imucal.synth import TemperatureProfile, make_session
 
+FLAT = TemperatureProfile(acc=(), gyro=())
 LINEAR = TemperatureProfile(acc=((4e-4, -3e-4, 2e-4),), gyro=((1e-4, -8e-5, 6e-5),))
 QUADRATIC = TemperatureProfile()  # 15 to 45 deg C, 0.4 mg/degC and 0.01 mg/degC^2 or so
 CUBIC = TemperatureProfile(acc=((4e-4, -3e-4, 2e-4), (1e-5, 1.5e-5, -1e-5), (1e-6, -1e-6, 8e-7)),
@@ -53,6 +54,25 @@ def test_a_15_to_45_degC_ramp_gives_the_bias_within_1_mg_and_0_02_dps(profile, o
         flat = np.ptp(truth.acc_bias_at(np.array([15.0, 45.0])) * 1e3, axis=0).max()
         assert flat > 5.0
     assert sum(a == order for a, _ in orders) >= 3 and sum(g == order for _, g in orders) >= 3
+
+
+@pytest.mark.parametrize(("profile", "order"), [(FLAT, 0), (LINEAR, 1), (QUADRATIC, 2)])
+def test_20_poses_choose_the_truths_order_and_say_what_they_cannot_try(profile, order):
+    """From 20 poses M17's 9 + 3p unknowns leave five folds too few blocks for order 2 (order 1
+    was chosen for a quadratic drift, about 2 mg left): leave-one-out gives the truth's order
+    and the bias within 1 mg and 0.02 deg/s; order 3 (18 unknowns from 20 norms) is not tried,
+    and said."""
+    orders = []
+    for seed in range(1, 4):
+        result, truth = _fit(seed, profile, poses=20, single_segment=True)
+        acc, gyro = result.temperature
+        acc_mg, gyro_dps = _residuals(result, truth)
+        assert acc_mg <= 1.0 and gyro_dps <= 0.02, (seed, acc_mg, gyro_dps)
+        orders.append((acc.order, gyro.order))
+        assert np.isfinite(acc.cv_rms[:3]).all() and np.isnan(acc.cv_rms[3])
+        assert any(n.startswith(f"accelerometer: orders 3 and above not tried: {acc.blocks} "
+                                "still blocks, and order 3 needs 21") for n in acc.notes)
+    assert sum(a == order for a, _ in orders) >= 2 and sum(g == order for _, g in orders) >= 2
 
 
 def test_a_5_degC_span_is_said_and_not_extrapolated():

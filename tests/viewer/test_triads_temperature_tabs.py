@@ -113,9 +113,9 @@ def test_accelerometer_bias_against_temperature_and_the_span(tt):
     assert temps[0] < lo and temps[-1] > hi  # drawn beyond the span seen ...
     mg = np.column_stack(curves)
     outside = (temps < lo) | (temps > hi)
-    edge = np.where(temps[outside, None] < lo, mg[np.argmin(np.abs(temps - lo))],
-                    mg[np.argmin(np.abs(temps - hi))])
-    np.testing.assert_allclose(mg[outside], edge, atol=0.05)  # ... and held flat there
+    ends = (fit.bias_at(np.array([lo, hi])) - fit.b0) * 1e3  # the model at the span's ends
+    edge = np.where(temps[outside, None] < lo, ends[0], ends[1])
+    np.testing.assert_allclose(mg[outside], edge, atol=1e-9)  # ... and held flat there
     # the change over the ramp is the synthetic truth's (8, -6, 4 mg from 20 to 40 deg C)
     at = np.interp([20.0, 40.0], temps, mg[:, 0]), np.interp([20.0, 40.0], temps, mg[:, 1])
     true = np.diff(truth.temperature.acc_drift(np.array([20.0, 40.0])), axis=0)[0] * 1e3
@@ -249,3 +249,53 @@ def test_scale_against_temperature_where_the_data_determine_it(tmp_path):
         assert slope == pytest.approx(profile.acc_scale[i] * 1e6, abs=40)  # ppm per deg C
     views = [v.name for v in blueprint(result).root_container.contents[-2].contents[0].contents]
     assert views[-1] == "Accelerometer scale K(T)/K − 1 (ppm)"
+
+
+def test_every_triads_temperature_fit_is_drawn(tmp_path):
+    """Both IMUs drift, each by its own coefficients (synth's --acc2 --gyro2 --temperature):
+    the Temperature tab draws the second triad's bias curves beside the reference's, its
+    gyroscope's still blocks and fit on each axis's plot, and its orders in the note; each
+    follows its own truth, not the other's."""
+    from imucal.cli.synth_triads import ACC2_TEMP, GYRO2_TEMP
+
+    profile = TemperatureProfile(acc2=ACC2_TEMP, gyro2=GYRO2_TEMP)
+    session, truth = make_session(poses=30, seed=2, acc_rate=200.0, temperature=profile,
+                                  second_acc=SecondTriad(gyro=True, same_clock=True))
+    result = calibrate_triads(calibrate_temperature(imucal.calibrate(session)),
+                              temperature=True)
+    rrd = tmp_path / "both.rrd"
+    save_recording(result, rrd)
+    (tri,) = result.triads
+    acc2, gyro2 = tri.result.temperature
+    base = P.temp_plot("accelerometer", "bias")
+    drawn = []
+    for i, a in enumerate("xyz"):
+        v = rb.values(rrd, P.series(base, f"t2_bias_{a}"))
+        temps, mg = np.asarray(v["degC"]), np.asarray(v["mg"])
+        np.testing.assert_allclose(mg, (acc2.bias_at(temps) - acc2.b0)[:, i] * 1e3, rtol=1e-12)
+        drawn.append(np.diff(np.interp([20.0, 40.0], temps, mg))[0])
+    # its change from 20 to 40 deg C is its own truth's, 17 mg from the first's
+    own, first = (np.diff(f(np.array([20.0, 40.0])), axis=0)[0] * 1e3
+                  for f in (profile.acc2_drift, profile.acc_drift))
+    np.testing.assert_allclose(drawn, own, atol=1.0)
+    assert np.linalg.norm(own - first) > 10.0
+    pts = (gyro2.points() - gyro2.b0) * np.degrees(1.0)
+    for i, a in enumerate("xyz"):
+        plot = P.temp_plot("gyroscope", f"bias_{a}")
+        v = rb.values(rrd, P.series(plot, "t2_points"))
+        np.testing.assert_allclose(v["deg/s"], pts[:, i], rtol=1e-12)
+        np.testing.assert_allclose(v["degC"], gyro2.temps, rtol=1e-12)
+        fitted = rb.values(rrd, P.series(plot, "t2_fit"))
+        np.testing.assert_allclose(fitted["deg/s"], (gyro2.bias_at(fitted["degC"])
+                                                     - gyro2.b0)[:, i] * np.degrees(1.0))
+        want = np.degrees(profile.gyro2_drift(np.asarray(fitted["degC"]))[:, i]
+                          - profile.gyro2_drift(np.array([fitted["degC"][0]]))[0, i])
+        inside = (np.asarray(fitted["degC"]) > gyro2.span[0]) & (
+            np.asarray(fitted["degC"]) < gyro2.span[1])
+        got = np.asarray(fitted["deg/s"]) - fitted["deg/s"][0]
+        err = (got - want)[inside] - np.mean((got - want)[inside])
+        assert np.sqrt(np.mean(err**2)) < 0.02  # deg/s: the shape of its own truth
+    note = rb.values(rrd, P.TEMP_NOTE)["TextDocument:text"]
+    assert note == temperature_note(result)
+    assert f"- **acc a2, accelerometer**: order {acc2.order} over" in note
+    assert f"- **acc a2, gyroscope**: order {gyro2.order} over" in note
