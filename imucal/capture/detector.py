@@ -72,6 +72,8 @@ class DetectorState:
     next_up: np.ndarray | None = None  # (3,) the pose advised next, a unit direction
     rate: float = 0.0  # |w - still bias| of the last sample, raw gyroscope units
     turn_peak: float = 0.0  # its largest value since the last hold ended (the turn's peak)
+    turn: dict | None = None  # the same in deg/s against the limit, once the unit is known
+    #   (imucal.capture.run.turn_figures; set by the capture loop for the live view)
 
 
 class StillDetector:
@@ -116,6 +118,7 @@ class StillDetector:
         self.turns: deque[np.ndarray] = deque(maxlen=max_turns)  # the turns between them
         self.turn_peak = 0.0
         self.rate_now = 0.0
+        self.closed_at = -np.inf  # the last sample of a hold that ended in this batch
 
     def feed(self, t: np.ndarray, acc: np.ndarray, gyro: np.ndarray | None = None
              ) -> DetectorState:
@@ -150,15 +153,17 @@ class StillDetector:
         still = m1 < K * self.floor
         t = np.asarray(t, dtype=np.float64)
         rows = None
+        self.closed_at = -np.inf
         if gyro is not None and self.g_ref is not None:
             rows = np.column_stack([t, np.asarray(gyro, dtype=np.float64)])
             # the turn's rate, about the still bias so far (raw units; none before a hold)
             rate = np.linalg.norm(rows[:, 1:] - self.gyro_bias(), axis=1)
-            moving = rate[~still]
-            if len(moving):
-                self.turn_peak = max(self.turn_peak, float(moving.max()))
             self.rate_now = float(rate[-1])
         new = self._runs(t, np.asarray(acc, dtype=np.float64), rows, still)
+        if rows is not None:  # the peak of the moving samples since the last hold ended
+            moving = rate[~still & (t > self.closed_at)]
+            if len(moving):
+                self.turn_peak = max(self.turn_peak, float(moving.max()))
         if new:
             self._poses()
         self.last = np.asarray(acc[-1], dtype=np.float64)
@@ -287,7 +292,7 @@ class StillDetector:
                 tail = self.run_tail[:, [0, 4, 5, 6]]
                 self.turn = TurnBuffer(tail[:2])
                 self.turn.add(tail[2:])
-                self.turn_peak = 0.0
+                self.turn_peak, self.closed_at = 0.0, self.t_last
         self.run_start, self.run_n, self.confirmed = None, 0, False
 
     def _keep(self, hold: Hold) -> None:

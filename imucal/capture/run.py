@@ -139,6 +139,7 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
                 if per_unit != per_unit and st.new_holds and det.turns:  # NaN: not yet
                     per_unit = rate_per_unit(_retained(det, parser))
                 if on_batch is not None:
+                    st.turn = turn_figures(st, per_unit, det.rate)
                     on_batch(batch, st)
                 if st.new_holds:
                     want_fit = True
