@@ -4,6 +4,7 @@ not grow over an hour), beside a plain read of the same stream.
     .venv/bin/python bench/capture_memory.py make STREAM.txt --minutes 60 [--rate 1000]
     .venv/bin/python bench/capture_memory.py plain < STREAM.txt
     .venv/bin/python bench/capture_memory.py capture DIR < STREAM.txt
+    .venv/bin/python bench/capture_memory.py feed STREAM.txt --speed 60 | ...capture DIR
 
 ``make`` writes a synthetic session (poses of 3 s, turns of 2 s) as the lines a device sends
 (t,ax,ay,az,gx,gy,gz); ``plain`` reads standard input to its end, the lines counted (the
@@ -14,7 +15,8 @@ calibration of the whole file (the once-at-the-end step, whose load of the file 
 thing that grows with the stream). Each prints one JSON line: its own peak RSS (ru_maxrss),
 and for ``capture`` the peak of the loop before the final calibration too (the resident
 memory sampled every 20 ms), what the detector kept and the fits made. Fed from a file, the
-stream comes as fast as it is read.
+stream comes as fast as it is read; ``feed`` paces it as a device at ``--speed`` times real
+time would (the running fits come as often as over a real capture of that length, compressed).
 """
 
 from __future__ import annotations
@@ -45,6 +47,35 @@ def make(path: str, minutes: float, rate: float) -> None:
         for i in range(0, len(frames), 100_000):
             f.write(b"".join(frames[i:i + 100_000]))
     print(json.dumps({"samples": len(session.t_acc), "seconds": session.duration}))
+
+
+def feed(path: str, speed: float) -> None:
+    """The stream file to standard output at ``speed`` times real time: a block of about 1 MB
+    of lines at a time, once its last sample is due (a device's pace, not a file's)."""
+    import time
+
+    out = sys.stdout.buffer
+    start = None
+    with open(path, "rb") as f:
+        out.write(f.readline())  # the header line
+        rest = b""
+        while True:
+            block = f.read(1 << 20)
+            if not block:
+                break
+            block = rest + block
+            cut = block.rfind(b"\n") + 1
+            block, rest = block[:cut], block[cut:]
+            last = block[block.rfind(b"\n", 0, len(block) - 1) + 1:]
+            t = float(last.split(b",", 1)[0])
+            if start is None:
+                start = time.monotonic() - t / speed
+            wait = start + t / speed - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            out.write(block)
+        out.write(rest)
+        out.flush()
 
 
 def plain() -> None:
@@ -126,6 +157,9 @@ def main() -> None:
     m.add_argument("path")
     m.add_argument("--minutes", type=float, default=30.0)
     m.add_argument("--rate", type=float, default=1000.0)
+    fd = sub.add_parser("feed")
+    fd.add_argument("path")
+    fd.add_argument("--speed", type=float, default=60.0)
     sub.add_parser("plain")
     c = sub.add_parser("capture")
     c.add_argument("out")
@@ -134,6 +168,8 @@ def main() -> None:
         sys.path.insert(0, str(ROOT))
     if args.cmd == "make":
         make(args.path, args.minutes, args.rate)
+    elif args.cmd == "feed":
+        feed(args.path, args.speed)
     elif args.cmd == "plain":
         plain()
     else:

@@ -94,7 +94,7 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
     """Capture ``source`` into ``out``/session.csv until the calibration meets ``goal`` (see the
     module's docstring); ``on_status`` gets the guide as a dict (:func:`status`), ``on_batch``
     each batch of samples with the detector's state after it (the live view), ``spec`` the
-    limits (:class:`imucal.fleet.spec.Spec`) the unit must be within (:mod:`.stop`);
+    limits the unit must be within (:class:`imucal.capture.stop.SpecCheck`);
     ``detector`` the incremental detector to use (a test reads what it keeps)."""
     out = Path(out)
     if (out / SESSION_NAME).exists():

@@ -1,11 +1,11 @@
 """When a capture has enough: the run is judged good and every accelerometer and gyroscope
 parameter's standard error is under its target (method.md §13).
 
-With a spec (the batch's limits file, :mod:`imucal.fleet.spec`), enough is also "within its
-limits"; and a capture whose running calibration can no longer be within them stops there,
-failed (:func:`lost_limits`): a parameter beyond its limit by more than ``LOST_Z`` of its
-standard errors, or a still-norm figure whose floor (the scatter no more data removes) is over
-its limit.
+With a spec (the batch's limits file, :mod:`imucal.fleet.spec`, as a :class:`SpecCheck`),
+enough is also "within its limits"; and a capture whose running calibration can no longer be
+within them stops there, failed (:func:`lost_limits`): a parameter beyond its limit by more
+than ``LOST_Z`` of its standard errors, or a still-norm figure whose floor (the scatter no more
+data removes) is over its limit.
 
 The targets are in the units a user reads: misalignment in mrad, scale factor relative to
 itself in %, accelerometer bias in mg (the raw bias's error times the scale, over |g|). The
@@ -15,6 +15,7 @@ poses of 3 s): "quick" is met at 12-18 poses, "default" at 16-20, "factory" at 2
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -26,8 +27,17 @@ from imucal.stages.verdict import GOOD
 
 if TYPE_CHECKING:
     from imucal.capture.running import RunningFit
-    from imucal.fleet.spec import Spec
     from imucal.result import Result
+
+
+@dataclass(frozen=True)
+class SpecCheck:
+    """A spec (the batch's limits file, :mod:`imucal.fleet.spec`) as the capture uses it; the
+    caller, which may import the fleet's modules, makes it (imucal.cli.capture)."""
+
+    limits: dict[str, float]  # limit name -> value, in the spec's units
+    broken: Callable[[dict], list[str]]  # the limits a summary row breaks (the spec's check)
+    row_of: Callable[[Result], dict]  # a result's summary row (imucal.fleet.summary)
 
 
 @dataclass(frozen=True)
@@ -80,31 +90,27 @@ class Progress:
                 f"{self.ratio:.2f} x its target{spec}")
 
 
-def progress(result: Result, goal: Targets, spec: Spec | None = None) -> Progress:
+def progress(result: Result, goal: Targets, spec: SpecCheck | None = None) -> Progress:
     """The ratios of each standard error to its target, over every segment's fits, and the
     limits of ``spec`` the result breaks (as ``imucal calibrate --spec`` judges them)."""
-    from imucal.fleet.spec import check
-    from imucal.fleet.summary import result_columns
-
     several = len(result.segments) > 1
     fits = [(f"segment {seg.number}" if several else "", seg.acc, seg.gyro)
             for seg in result.segments]
     # A session with a gyroscope needs its fit in every segment before it can be enough.
     fitted = not result.session.has_gyro or all(s.gyro is not None for s in result.segments)
     level = result.verdict.level if result.verdict is not None else ""
-    broken = tuple(check(spec, result_columns(result)).broken) if spec is not None else ()
+    broken = tuple(spec.broken(spec.row_of(result))) if spec is not None else ()
     return _progress(level, fits, fitted, goal, broken, ())
 
 
-def running_progress(fit: RunningFit, goal: Targets, spec: Spec | None = None) -> Progress:
+def running_progress(fit: RunningFit, goal: Targets, spec: SpecCheck | None = None
+                     ) -> Progress:
     """:func:`progress` of a running calibration (imucal.capture.running), with the limits it
     can no longer meet."""
-    from imucal.fleet.spec import check
-
     broken = lost = ()
     if spec is not None:
-        broken = tuple(check(spec, fit.row).broken)
-        lost = tuple(lost_limits(spec, fit.row))
+        broken = tuple(spec.broken(fit.row))
+        lost = tuple(lost_limits(spec.limits, fit.row))
     fitted = not fit.has_gyro or fit.gyro is not None
     return _progress(fit.level, [("", fit.acc, fit.gyro)], fitted, goal, broken, lost)
 
@@ -149,18 +155,21 @@ _PARAM_LIMITS = {
 }
 
 
-def lost_limits(spec: Spec, row: dict) -> list[str]:
-    """The limits of ``spec`` that the running calibration ``row`` (imucal.capture.running)
+UNITS = {"acc_bias_mg": "mg", "acc_scale_pct": "%", "acc_misalignment_mrad": "mrad",
+         "gyro_bias_dps": "deg/s", "gyro_scale_pct": "%", "gyro_misalignment_mrad": "mrad"}
+
+
+def lost_limits(limits: dict[str, float], row: dict) -> list[str]:
+    """The ``limits`` (a spec's) that the running calibration ``row`` (imucal.capture.running)
     can no longer meet (method.md §13): a parameter whose value is past its limit by more than
     ``LOST_Z`` standard errors (one the data do not determine yet is never lost: more poses may
     determine it), and the still-norm error when the floor of the block means' scatter is at
     or over its limit. The held-out gravity error is not judged early: slower or different
     turns can lower it."""
-    from imucal.fleet.spec import LIMITS
     from imucal.session import STANDARD_GRAVITY
 
     out = []
-    for key, limit in spec.limits.items():
+    for key, limit in limits.items():
         if key == "static_norm_error_mg":
             floor = row.get("static_norm_floor_mg")
             if floor is not None and floor >= limit:
@@ -182,6 +191,6 @@ def lost_limits(spec: Spec, row: dict) -> list[str]:
             v = (v - 1.0 if "scale" in key else v) * k
             z = (abs(v) - limit) / (sd * k)
             if z > LOST_Z:
-                out.append(f"{key}: {name} = {v:.4g} {LIMITS[key]}, {z:.0f} standard errors "
+                out.append(f"{key}: {name} = {v:.4g} {UNITS[key]}, {z:.0f} standard errors "
                            f"past the limit {limit:g}")
     return out

@@ -100,9 +100,7 @@ def capture_cmd(
     goal = targets(target)
     limits = None
     if spec is not None:
-        from imucal.fleet.spec import load_spec
-
-        limits = load_spec(spec)  # before the capture: a bad spec is one line, nothing read
+        limits = spec_check(spec)  # before the capture: a bad spec is one line, nothing read
     src = open_source(source)
 
     if no_view and web:
@@ -157,6 +155,17 @@ def capture_cmd(
     elif viewer is not None:
         viewer.detach()  # the native window stays until the user closes it
     return 0 if report.passed else 1
+
+
+def spec_check(path: Path):
+    """A limits file as the capture judges it (imucal.capture.stop.SpecCheck): the batch's
+    check of a summary row, as `imucal calibrate --spec` makes it."""
+    from imucal.capture.stop import SpecCheck
+    from imucal.fleet.spec import check, load_spec
+    from imucal.fleet.summary import result_columns
+
+    limits = load_spec(path)
+    return SpecCheck(limits.limits, lambda row: check(limits, row).broken, result_columns)
 
 
 def _live_view(no_view: bool, web: bool, rrd: str | None):

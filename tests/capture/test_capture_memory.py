@@ -17,7 +17,7 @@ from imucal.capture.send import frames_of, paced
 from imucal.capture.sources import FdSource
 from imucal.capture.stop import PRESETS, lost_limits, progress, running_progress
 from imucal.capture.turns import TurnBuffer
-from imucal.fleet.spec import Spec
+from imucal.cli.capture import spec_check
 from imucal.models import SensorModel, acc_theta, gyro_theta
 from imucal.synth import make_session
 
@@ -94,7 +94,7 @@ def test_running_fit_agrees_with_the_full_method():
 
 
 def test_lost_limits_rule():
-    spec = Spec({"acc_bias_mg": 40.0, "static_norm_error_mg": 1.0, "acc_scale_pct": 1.0})
+    spec = {"acc_bias_mg": 40.0, "static_norm_error_mg": 1.0, "acc_scale_pct": 1.0}
     row = {"acc_unit_raw": "g", "acc_b_x": 0.050, "acc_std_b_x": 0.001,  # 10 sd past 40 mg
            "acc_b_y": 0.043, "acc_std_b_y": 0.001,  # 3 sd past: more data may bring it in
            "acc_b_z": 0.0, "acc_std_b_z": 0.001, "acc_s_x": 1.02, "acc_std_s_x": np.nan,
@@ -124,7 +124,9 @@ def test_spec_that_can_no_longer_pass_stops_failed(tmp_path):
 
     thread = threading.Thread(target=device, daemon=True)
     thread.start()
-    spec = Spec({"acc_bias_mg": 40.0, "acc_scale_pct": 5.0})
+    limits = tmp_path / "limits.toml"
+    limits.write_text("acc_bias_mg = 40\nacc_scale_pct = 5\n")
+    spec = spec_check(limits)
     report = capture(FdSource(r), tmp_path / "D", PRESETS["factory"], spec=spec, until=60)
     os.close(r)
     thread.join()
