@@ -110,7 +110,7 @@ def test_lost_limits_rule():
 def test_spec_that_can_no_longer_pass_stops_failed(tmp_path):
     # A device whose accelerometer bias on x is 80 mg, against a limit of 40 mg.
     acc = SensorModel(T=np.eye(3), K=np.array([1.01, 0.99, 1.0]), b=np.array([0.08, 0.0, 0.0]))
-    session, _ = make_session(poses=40, seed=4, acc_truth=acc)
+    session, _ = make_session(poses=60, seed=4, acc_truth=acc)  # 305 s, sent in 15 s
     head, frames = frames_of(session, "lines")
     r, w = os.pipe()
 
@@ -118,7 +118,7 @@ def test_spec_that_can_no_longer_pass_stops_failed(tmp_path):
         with os.fdopen(w, "wb", buffering=0) as f:
             try:
                 f.write(b"".join(head))
-                paced(session.t_acc, frames, 50.0, lambda chunk: f.write(b"".join(chunk)))
+                paced(session.t_acc, frames, 20.0, lambda chunk: f.write(b"".join(chunk)))
             except BrokenPipeError:
                 pass
 
