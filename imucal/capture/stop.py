@@ -85,7 +85,7 @@ class Progress:
         if self.lost:
             spec = f"; can no longer meet the spec: {', '.join(self.lost)}"
         elif self.broken:
-            spec = f"; out of the spec so far: {', '.join(self.broken)}"
+            spec = f"; out of the spec: {', '.join(self.broken)}"
         return (f"{self.level or 'no verdict'}; worst {self.worst} at "
                 f"{self.ratio:.2f} x its target{spec}")
 
