@@ -1,7 +1,8 @@
 """The live view of ``imucal capture`` (issue 25, item 2): the signals scrolling, the detector's
-still/moving state and the hold's timer against the minimum, the sphere of poses held so far
-with the current direction of gravity and the pose to hold next, and the worst standard error
-against its target shrinking as holds come in.
+still/moving state and the hold's timer against the minimum, the turn's rate and its peak
+against the method's limit (the rotation M5's integration carries per sample), the sphere of
+poses held so far with the current direction of gravity and the pose to hold next, and the
+worst standard error against its target shrinking as holds come in.
 
 The capture's core calls :meth:`LiveView.batch` with each batch and :meth:`LiveView.status`
 with each status; rows are sent at most every ``SEND_S`` seconds (10 Hz), a batch of columns
@@ -21,7 +22,7 @@ from .paths import APPLICATION_ID
 
 SEND_S = 0.1  # the view is updated at 10 Hz
 ACC, GYRO, STILL, HOLD = "live/accelerometer", "live/gyroscope", "live/still", "live/hold"
-POSES, RATIO = "live/orientations", "live/worst_over_target"
+POSES, RATIO, TURN = "live/orientations", "live/worst_over_target", "live/turn_rate"
 SPHERE_POSES, SPHERE_NOW, SPHERE_NEXT = "sphere/poses", "sphere/gravity", "sphere/next"
 SPHERE_AXES, GUIDE = "sphere/axes", "guide"
 XYZ = [[230, 80, 80], [80, 200, 80], [80, 120, 240]]
@@ -46,7 +47,8 @@ def blueprint() -> rrb.Blueprint:
             rrb.Vertical(series("Accelerometer (raw)", ACC), series("Gyroscope (raw)", GYRO),
                          series("Still (1) or moving (0)", STILL, y=(-0.1, 1.1)),
                          series("Hold timer and the shortest hold that counts (s)", HOLD,
-                                y=(0.0, 6.0))),
+                                y=(0.0, 6.0)),
+                         series("Turn rate, the turn's peak and the limit (deg/s)", TURN)),
             rrb.Vertical(sphere,
                          rrb.Horizontal(series("Poses held", POSES, y=(0.0, 30.0)),
                                         series("Worst standard error / its target", RATIO,
@@ -71,6 +73,9 @@ class LiveView:
         rec.log(GYRO, rr.SeriesLines(names=["x", "y", "z"], colors=XYZ), static=True)
         rec.log(STILL, rr.SeriesLines(names="still"), static=True)
         rec.log(HOLD, rr.SeriesLines(names=["hold", "counts from"]), static=True)
+        rec.log(TURN, rr.SeriesLines(names=["rate", "turn's peak", "limit"],
+                                     colors=[[80, 120, 240], [240, 160, 40], [220, 60, 60]]),
+                static=True)
         rec.log(POSES, rr.SeriesLines(names="poses"), static=True)
         rec.log(RATIO, rr.SeriesLines(names="worst / target"), static=True)
         rec.log(SPHERE_AXES, rr.Arrows3D(vectors=np.eye(3) * 1.3, colors=XYZ,
@@ -107,6 +112,10 @@ class LiveView:
         self.rec.set_time("time", duration=self.t)
         self.rec.log(HOLD, rr.Scalars([st.hold_s, self.min_hold_s]))
         self.rec.log(POSES, rr.Scalars(float(st.orientations)))
+        turn = st.turn or {}
+        if turn.get("rate_dps") is not None and turn.get("rate_limit_dps") is not None:
+            self.rec.log(TURN, rr.Scalars([turn["rate_dps"], turn["turn_peak_dps"],
+                                           turn["rate_limit_dps"]]))
         if len(st.up):
             self.rec.log(SPHERE_POSES, rr.Points3D(st.up, radii=0.04, colors=[90, 90, 90]))
         if st.gravity is not None:
@@ -126,6 +135,12 @@ class LiveView:
                  f"- poses {st['orientations']} ({st['orientations_needed']} needed), "
                  f"sphere covered {st['coverage'] * 100:.0f} %",
                  f"- next: hold with {st['next_pose']}",
+                 f"- hold: {st['hold_s']:.1f} s (counts from {st['hold_min_s']:g} s, "
+                 f"{st['hold_advised_s']:g} s advised)",
+                 "- turn: " + (f"{st['rate_dps']:.0f} deg/s now, peak {st['turn_peak_dps']:.0f}"
+                               f" of the limit {st['rate_limit_dps']:.0f} deg/s"
+                               if st.get("rate_dps") is not None and st.get("rate_limit_dps")
+                               else "rate not known yet (the gyroscope's unit)"),
                  f"- samples {st['samples']}, garbled lines {st['garbled']}"]
         if cal is not None:
             lines.append(f"- calibration so far: {cal['verdict']}; worst {cal['worst']} at "

@@ -1,10 +1,12 @@
-"""The capture loop (method.md §13): read, parse, write, detect; after each new hold, calibrate
-the data so far (the full method on the session file, in a worker thread so that reading goes
-on); stop when the targets are met, at ``until`` seconds, at the end of the stream or on Ctrl-C.
+"""The capture loop (method.md §13): read, parse, write, detect; after each new hold,
+calibrate what the detector keeps (imucal.capture.running: the method's fits on the kept holds
+and turns, in a worker thread so that reading goes on); stop when the targets are met, when a
+spec can no longer be met, at ``until`` seconds, at the end of the stream or on Ctrl-C; then
+calibrate the whole session file once with the full method.
 
 The loop itself only moves batches: the parsing, the detector and the writer work on whole
-batches with numpy; the running calibration reads the session file (no sample is kept in
-memory beyond a batch and the detector's window).
+batches with numpy, and nothing but the session file grows with the stream (the detector keeps
+a bounded number of holds and turns, each turn in bounded rows).
 """
 
 from __future__ import annotations
@@ -15,20 +17,24 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from imucal.capture.detector import DetectorState, StillDetector, guide_line
+import numpy as np
+
+from imucal.capture.detector import MIN_HOLD_S, DetectorState, StillDetector, guide_line
 from imucal.capture.lines import Batch, LineParser
+from imucal.capture.running import Retained, fit_retained, rate_per_unit, retained
 from imucal.capture.sources import Source
-from imucal.capture.stop import Judge, Progress, Targets, progress
+from imucal.capture.stop import Progress, Targets, progress, running_progress
 from imucal.capture.writer import SESSION_NAME, SessionWriter
 from imucal.errors import ImucalError, plural
-from imucal.stages.guide import ORIENTATIONS_NEEDED
+from imucal.stages.guide import ADVISED_HOLD_S, ORIENTATIONS_NEEDED
+from imucal.stages.gyro import MAX_STEP_DEG
 
 NO_DATA_S = 5.0  # no valid sample this long after the start: say what came and what to check
 READ_S = 0.1  # the longest one read waits: the flush, the timer and --until stay on time
 TICK_S = 1.0  # a status line at least this often
 # The running fits take at most this share of the time: after a fit that took d seconds the
-# next waits (1 / FIT_SHARE - 1) d. An hour at 1 kHz makes a fit of the whole file last
-# seconds; without the wait they would run back to back, a whole core (issue 25: a quarter).
+# next waits (1 / FIT_SHARE - 1) d (issue 25: a quarter of a core in all). A fit's cost is
+# bounded by the holds and turns kept, not by the stream's length.
 FIT_SHARE = 0.2
 
 
@@ -83,23 +89,26 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
             rate: float | None = None, until: float | None = None,
             on_status: Callable[[dict], None] | None = None,
             on_batch: Callable[[Batch, DetectorState], None] | None = None,
-            judge: Judge | None = None, no_data_s: float = NO_DATA_S) -> CaptureReport:
+            spec=None, no_data_s: float = NO_DATA_S, detector: StillDetector | None = None
+            ) -> CaptureReport:
     """Capture ``source`` into ``out``/session.csv until the calibration meets ``goal`` (see the
     module's docstring); ``on_status`` gets the guide as a dict (:func:`status`), ``on_batch``
-    each batch of samples with the detector's state after it (the live view), ``judge`` a
-    result's broken limits (a spec: :mod:`imucal.capture.stop`)."""
+    each batch of samples with the detector's state after it (the live view), ``spec`` the
+    limits the unit must be within (:class:`imucal.capture.stop.SpecCheck`);
+    ``detector`` the incremental detector to use (a test reads what it keeps)."""
     out = Path(out)
     if (out / SESSION_NAME).exists():
         raise ImucalError("a capture is already there; give another --out directory",
                           source=str(out / SESSION_NAME))
     parser = LineParser(source.describe, columns=columns, rate=rate)
-    det = StillDetector()
+    det = StillDetector() if detector is None else detector
     writer: SessionWriter | None = None
     pool = ThreadPoolExecutor(1, thread_name_prefix="imucal-capture-fit")
     future: Future | None = None
     want_fit = False
     last: Progress | None = None
     fits = 0
+    per_unit = float("nan")  # rad/s per raw gyroscope unit, once known
     st = DetectorState("waiting", 0.0, 0, 0, 0.0, "any axis up")
     start = time.monotonic()
     last_tick = start
@@ -109,7 +118,7 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
     def emit(event: str) -> None:
         if on_status is not None:
             on_status(status(event, time.monotonic() - start, st, parser, last,
-                             getattr(source, "garbled", 0)))
+                             getattr(source, "garbled", 0), per_unit, det.rate))
 
     try:
         while True:
@@ -126,8 +135,11 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
             if batch is not None:
                 writer.add(batch.text)
                 state = st.state
-                st = det.feed(batch.t, batch.acc)
+                st = det.feed(batch.t, batch.acc, batch.gyro)
+                if per_unit != per_unit and st.new_holds and det.turns:  # NaN: not yet
+                    per_unit = rate_per_unit(_retained(det, parser))
                 if on_batch is not None:
+                    st.turn = turn_figures(st, per_unit, det.rate)
                     on_batch(batch, st)
                 if st.new_holds:
                     want_fit = True
@@ -140,7 +152,8 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
             if writer is not None and writer.due(now):
                 writer.flush(wait=False)
             if future is not None and future.done():
-                last, future = _fitted(future), None
+                last, unit, future = *_fitted(future), None
+                per_unit = unit if unit == unit else per_unit
                 if fits:  # the first fit also loads the method's code: not its pace
                     next_fit = now + (now - fit_started) * (1.0 / FIT_SHARE - 1.0)
                 fits += 1
@@ -149,13 +162,12 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
                     stopped = "targets met"
                     break
                 if last is not None and last.failed:
-                    stopped = "out of the spec"
+                    stopped = "out of the spec: " + "; ".join(last.lost)
                     break
             if (want_fit and future is None and st.orientations >= ORIENTATIONS_NEEDED
                     and now >= next_fit):
-                writer.flush()
                 fit_started = now
-                future = pool.submit(_fit_so_far, writer, goal, judge)
+                future = pool.submit(_fit_so_far, _retained(det, parser), goal, spec)
                 want_fit = False
             if now - last_tick >= TICK_S:
                 last_tick = now
@@ -174,7 +186,7 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
     duration = time.monotonic() - start
     final_error = None
     try:  # the pass/fail is the whole file's, not the last running fit's
-        final = progress(calibrate_file(writer.path), goal, judge)
+        final = progress(calibrate_file(writer.path), goal, spec)
     except ImucalError as e:
         final, final_error = None, str(e)
     last = final if final is not None else last
@@ -187,16 +199,23 @@ def capture(source: Source, out: str | Path, goal: Targets, *, columns: str | No
                          final_error=final_error)
 
 
-def _fit_so_far(writer: SessionWriter, goal: Targets, judge: Judge | None) -> Progress:
-    return progress(calibrate_file(writer.path, writer), goal, judge)
+def _retained(det: StillDetector, parser: LineParser) -> Retained:
+    lay = parser.layout
+    return retained(det, lay.names, lay.acc, lay.gyro)
 
 
-def _fitted(future: Future) -> Progress | None:
-    """A running calibration's progress; None when the data so far do not calibrate yet."""
+def _fit_so_far(kept: Retained, goal: Targets, spec) -> tuple[Progress, float]:
+    fit = fit_retained(kept)
+    return running_progress(fit, goal, spec), fit.per_unit
+
+
+def _fitted(future: Future) -> tuple[Progress | None, float]:
+    """A running calibration's progress and the gyroscope's rad/s per raw unit; None (and
+    NaN) when the data so far do not calibrate yet."""
     try:
         return future.result()
     except ImucalError:
-        return None
+        return None, float("nan")
 
 
 def _no_data(source: Source, parser: LineParser, seconds: float) -> ImucalError:
@@ -205,15 +224,32 @@ def _no_data(source: Source, parser: LineParser, seconds: float) -> ImucalError:
 
 
 def status(event: str, elapsed: float, st: DetectorState, parser: LineParser,
-           last: Progress | None, garbled_frames: int = 0) -> dict:
+           last: Progress | None, garbled_frames: int = 0, per_unit: float = float("nan"),
+           rate_hz: float | None = None) -> dict:
     """One status object (``--json-status`` prints it as a line of JSON); ``garbled_frames``
-    what the source itself skipped (bytes that form no MAVLink message)."""
+    what the source itself skipped (bytes that form no MAVLink message); ``per_unit`` the
+    gyroscope's rad/s per raw unit (NaN until known), ``rate_hz`` the sample rate."""
+    turn = turn_figures(st, per_unit, rate_hz)
     return {"event": event, "elapsed_s": round(elapsed, 3), "state": st.state,
-            "hold_s": round(st.hold_s, 2), "holds": st.holds, "orientations": st.orientations,
+            "hold_s": round(st.hold_s, 2), "hold_min_s": MIN_HOLD_S,
+            "hold_advised_s": ADVISED_HOLD_S, **turn,
+            "holds": st.holds, "orientations": st.orientations,
             "orientations_needed": ORIENTATIONS_NEEDED, "coverage": round(st.coverage, 3),
             "next_pose": st.next_pose, "samples": parser.valid,
             "garbled": parser.garbled + garbled_frames,
             "calibration": None if last is None else
             {"verdict": last.level, "worst": last.worst, "ratio": round(last.ratio, 3),
-             "met": last.met},
-            "guide": guide_line(st)}
+             "met": last.met, "broken": list(last.broken), "lost": list(last.lost)},
+            "guide": guide_line(st, turn)}
+
+
+def turn_figures(st: DetectorState, per_unit: float, rate_hz: float | None) -> dict:
+    """The turn's rate now and its peak since the last hold, in deg/s, against the method's
+    limit (the rotation M5's RK4 integration carries per sample, ``MAX_STEP_DEG`` times the
+    sample rate); None where not known (no gyroscope, the unit or the rate not known yet)."""
+    def dps(x: float) -> float | None:
+        return round(float(np.degrees(x * per_unit)), 1) if per_unit == per_unit else None
+
+    limit = None if not rate_hz else round(MAX_STEP_DEG * rate_hz, 1)
+    return {"rate_dps": dps(st.rate), "turn_peak_dps": dps(st.turn_peak),
+            "rate_limit_dps": limit}

@@ -66,8 +66,10 @@ def capture_cmd(
     spec: Annotated[Path | None, typer.Option(
         "--spec", metavar="LIMITS.toml", show_default=False,
         help="Limits the unit must be within (as for 'imucal batch'): the capture passes when "
-             "the targets are met within them, and stops failed as soon as the parameters are "
-             "known to the targets and out of them.")] = None,
+             "the targets are met within them, and stops failed (exit 1, the limit named) as "
+             "soon as one can no longer be met: a parameter more than 5 standard errors past "
+             "its limit, or still poses that scatter more than static_norm_error_mg whatever "
+             "is recorded.")] = None,
     no_view: Annotated[bool, typer.Option(
         "--no-view", help="No live viewer (scripts and tests); the guide is printed.")] = False,
     web: Annotated[bool, typer.Option(
@@ -96,15 +98,9 @@ def capture_cmd(
     from imucal.capture.stop import targets
 
     goal = targets(target)
-    judge = None
+    limits = None
     if spec is not None:
-        from imucal.fleet.spec import check, load_spec
-        from imucal.fleet.summary import result_columns
-
-        limits = load_spec(spec)  # before the capture: a bad spec is one line, nothing read
-
-        def judge(result) -> list[str]:
-            return check(limits, result_columns(result)).broken
+        limits = spec_check(spec)  # before the capture: a bad spec is one line, nothing read
     src = open_source(source)
 
     if no_view and web:
@@ -122,6 +118,8 @@ def capture_cmd(
                 c = st["calibration"]
                 line = (f"calibration so far: {c['verdict']}; worst {c['worst']} at "
                         f"{c['ratio']:.2f} x its target")
+                if c["lost"]:
+                    line += f"; can no longer meet the spec: {'; '.join(c['lost'])}"
         else:
             return
         print(line, flush=True)
@@ -129,7 +127,7 @@ def capture_cmd(
     try:
         report = capture(src, out, goal, columns=columns, rate=rate, until=until,
                          on_status=on_status, on_batch=None if live is None else live.batch,
-                         judge=judge)
+                         spec=limits)
     finally:
         if live is not None:
             live.close()
@@ -157,6 +155,17 @@ def capture_cmd(
     elif viewer is not None:
         viewer.detach()  # the native window stays until the user closes it
     return 0 if report.passed else 1
+
+
+def spec_check(path: Path):
+    """A limits file as the capture judges it (imucal.capture.stop.SpecCheck): the batch's
+    check of a summary row, as `imucal calibrate --spec` makes it."""
+    from imucal.capture.stop import SpecCheck
+    from imucal.fleet.spec import check, load_spec
+    from imucal.fleet.summary import result_columns
+
+    limits = load_spec(path)
+    return SpecCheck(limits.limits, lambda row: check(limits, row).broken, result_columns)
 
 
 def _live_view(no_view: bool, web: bool, rrd: str | None):

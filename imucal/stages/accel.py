@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -158,8 +159,21 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     else:
         pts_raw, _ = select_points(acc, blocks, settings.points, settings.n_select,
                                    settings.n_group)
+    return fit_points(pts_raw, noise, len(blocks), lambda: block_means(acc, blocks),
+                      acc_unit=acc_unit, g_in=g_in, g_out=g_out, settings=settings,
+                      nominal=nominal)
+
+
+def fit_points(pts_raw: np.ndarray, noise: BlockNoise | None, n_blocks: int,
+               sweep_means: Callable[[], np.ndarray], *, acc_unit: str, g_in: float,
+               g_out: float, settings: AccSettings = Settings().acc,
+               nominal: Nominal | None = None) -> AccFit:
+    """M3 on fit points already made (raw units): the block means and their noise for the
+    "ml" points (``noise`` None for the other modes). :func:`calibrate_accelerometer` makes
+    them from the samples; a live capture from the block means it keeps (method.md §13).
+    ``sweep_means`` gives the blocks' raw means for the L-curve's sweep, when there is one."""
     if len(pts_raw) < 9:
-        raise ImucalError(f"only {len(blocks)} static blocks ({len(pts_raw)} fit points); the "
+        raise ImucalError(f"only {n_blocks} static blocks ({len(pts_raw)} fit points); the "
                           "9-parameter accelerometer model needs at least 9 points from several "
                           "orientations", source="accelerometer", field="static blocks")
     if settings.lam != "auto":
@@ -188,11 +202,10 @@ def calibrate_accelerometer(acc: np.ndarray, blocks: np.ndarray, *, acc_unit: st
     d = np.r_[np.ones(3), np.full(3, k_scale), np.full(3, nominal.scale)]
     cov = _cov_nominal(report, data) * np.outer(d, d)
     std = det.std * d
-    sweep = None if curve is None else lambda_sweep(curve, nominal, g_out,
-                                                    block_means(acc, blocks))
+    sweep = None if curve is None else lambda_sweep(curve, nominal, g_out, sweep_means())
     return AccFit(model=model, std=std, cov=cov, theta_nominal=theta, nominal=nominal, g_out=g_out,
                   lam=report.lam, report=report, starts=start_costs, lcurve=curve,
-                  n_points=len(pts), n_blocks=len(blocks), sweep=sweep, warnings=warnings,
+                  n_points=len(pts), n_blocks=n_blocks, sweep=sweep, warnings=warnings,
                   points=data, undetermined=det.undetermined)
 
 
@@ -363,14 +376,20 @@ def block_mean_cov(acc: np.ndarray, blocks: np.ndarray, fit: AccFit) -> Factored
     Returned factored (``S cov S'`` plus 3 x 3 noise blocks on the diagonal, see
     :class:`~imucal.numerics.least_squares.FactoredCov`): the dense matrix grows with the
     square of the number of blocks (``np.asarray`` gives it)."""
-    B = len(blocks)
     n = (blocks[:, 1] - blocks[:, 0]).astype(float)
     s1, s2 = centred_segment_sums(acc, blocks[:, 0], blocks[:, 1], acc[0])  # no copy of acc
     m1, m2 = s1 / n[:, None], s2 / n[:, None]
     var_mean = np.clip(m2 - m1 * m1, 0, None) / np.maximum(n - 1, 1)[:, None]  # per axis
+    return mean_cov(m1 + acc[0], var_mean, fit)
+
+
+def mean_cov(means: np.ndarray, var_mean: np.ndarray, fit: AccFit) -> FactoredCov:
+    """:func:`block_mean_cov` from the blocks' raw means (B, 3) and the per-axis variances of
+    those means (B, 3), as a live capture keeps them (method.md §13)."""
+    B = len(means)
     M = fit.model.matrix
     noise = np.einsum("ij,bj,kj->bik", M, var_mean, M)  # M diag(var/n) M'
-    S = output_sensitivity(fit.model, m1 + acc[0]).reshape(3 * B, 9)
+    S = output_sensitivity(fit.model, means).reshape(3 * B, 9)
     return FactoredCov(S, fit.cov, noise)
 
 
@@ -426,6 +445,6 @@ def lambda_sweep(curve: LCurve, nominal: Nominal, g_out: float, means_raw: np.nd
 # The stage's interface; jacobian, residuals and select_points (accel_points.py) are re-exported
 # for the grouping (group.py) and the pipeline.
 __all__ = ["AccFit", "FitPoints", "LCurve", "LambdaSweep", "Nominal", "best_fit", "block_mean_cov",
-           "calibrate_accelerometer", "ellipsoid_start", "jacobian", "lambda_sweep", "make_nominal",
-           "output_sensitivity", "residuals", "select_points", "sphere_fit", "to_raw_model",
-           "undetermined"]
+           "calibrate_accelerometer", "ellipsoid_start", "fit_points", "jacobian", "lambda_sweep",
+           "make_nominal", "mean_cov", "output_sensitivity", "residuals", "select_points",
+           "sphere_fit", "to_raw_model", "undetermined"]

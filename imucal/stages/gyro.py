@@ -237,7 +237,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                         settings: GyroSettings = Settings().gyro,
                         gravity_cov: np.ndarray | FactoredCov | None = None,
                         saturated: np.ndarray | None = None,
-                        no_data: np.ndarray | None = None) -> GyroFit:
+                        no_data: np.ndarray | None = None,
+                        bias: tuple[np.ndarray, str] | None = None) -> GyroFit:
     """Fit M4 so that integrating the calibrated rate (M5) turns each block's gravity
     direction into the next one's.
 
@@ -253,6 +254,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
 
     ``w_raw`` (N, 3) and ``t`` (N,) are read only by ``len``, ``.shape``, slices of rows and
     gathers with a 1-D integer array, never whole (they may be arrays kept on disk; issue 12).
+    ``bias`` (the still bias and its source) stands for :func:`static_bias` where the still
+    samples are not in ``w_raw`` (a live capture keeps the turns only, method.md §13).
     """
     if len(block_times) < 2:
         raise ImucalError(f"{plural(len(block_times), 'static block')}: the gyroscope needs at "
@@ -260,7 +263,8 @@ def calibrate_gyroscope(w_raw: np.ndarray, t: np.ndarray, block_times: np.ndarra
                           field="static blocks")
     warnings: list[RunWarning] = []
     u = gravity / np.linalg.norm(gravity, axis=1, keepdims=True)
-    bias, bias_source = static_bias(w_raw, t, block_times, settings.bias)
+    bias, bias_source = (static_bias(w_raw, t, block_times, settings.bias) if bias is None
+                         else bias)
     tr_all = Transitions(w_raw, t, block_times)
     excluded = _excluded_turns(tr_all, saturated, no_data, warnings)
     keep = ~excluded

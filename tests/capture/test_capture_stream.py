@@ -86,6 +86,12 @@ def test_stdin_stops_by_itself_and_equals_batch(tmp_path, truth):
     assert {s["state"] for s in status} <= {"waiting", "still", "moving"}
     assert status[-1]["calibration"]["met"] and status[-1]["calibration"]["ratio"] <= 1
     assert all(s["next_pose"].endswith(" up") or "covered" in s["next_pose"] for s in status)
+    # the hold's timer against the minimum, the turn's rate against the limit (10 deg per
+    # sample at 100 Hz), in deg/s once the gyroscope's unit is known
+    assert {s["hold_min_s"] for s in status} == {1.5}
+    assert {s["rate_limit_dps"] for s in status} == {1000.0}
+    peaks = [s["turn_peak_dps"] for s in status if s["turn_peak_dps"] is not None]
+    assert peaks and 20 < max(peaks) < 1000
     # Stopped before the stream's end, with most poses still to come.
     rows = _rows(out / "session.csv")
     assert 20 * 100 < rows < 0.8 * len(session.t_acc)

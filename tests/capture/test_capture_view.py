@@ -11,6 +11,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from imucal.cli.main import main
 from viewer import readback
@@ -54,6 +55,18 @@ def test_rrd_of_a_tcp_capture(tmp_path, capsys):
     assert len(last) >= 9 and np.allclose(np.linalg.norm(last, axis=1), 1, atol=1e-6)
     _, guide = readback.column(rrd, "guide", "TextDocument:text")
     assert "next: hold with" in str(guide[-1])
+    assert "- hold: " in str(guide[-1]) and "counts from 1.5 s" in str(guide[-1])
+    assert "of the limit 1000 deg/s" in str(guide[-1])
+    # The turn's rate, its peak and the limit (10 deg per sample at 100 Hz), in deg/s: the
+    # peak is the largest |w - still bias| of the rows received, and never under the rate.
+    _, turn = readback.scalars(rrd, "live/turn_rate")
+    assert len(turn) > 10 and np.all(turn[:, 2] == 1000.0)
+    assert np.all(turn[:, 1] >= turn[:, 0] - 0.05)
+    w = sent[:, 4:7]
+    still_bias = np.median(w[: 300], axis=0)  # the first 3 s lie still
+    peak = np.degrees(np.linalg.norm(w - still_bias, axis=1).max())
+    assert turn[:, 1].max() == pytest.approx(peak, rel=0.02)
+    assert 20 < peak < 1000  # real turns, all under the limit
 
 
 

@@ -1,11 +1,14 @@
 """The live view as a person sees it while capturing: a headless native viewer (software
 Vulkan) receives a capture of a synthetic device over gRPC as it happens, and every view of
-the layout must have drawn data (``IMUCAL_SCREENSHOT_DIR=docs`` keeps docs/live-view.png,
-what README shows). Needs mesa-vulkan-drivers: skipped without it, failed in CI."""
+the layout must have drawn data, mid-capture (during a turn, with 12 poses held and the turn's
+rate against its limit) and at the end (``IMUCAL_SCREENSHOT_DIR=docs`` keeps docs/live.png and
+docs/live-view.png, what README shows). Needs mesa-vulkan-drivers: skipped without it, failed
+in CI."""
 
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -41,16 +44,32 @@ def test_live_view_draws_while_capturing(tmp_path, native_viewer):
                     out.flush()
 
                 send(head)
-                paced(session.t_acc, frames, 25.0, send)
+                paced(session.t_acc, frames, 8.0, send)  # a turn lasts 0.25 s
 
         dev = threading.Thread(target=device, daemon=True)
         dev.start()
-        report = capture(FdSource(r), tmp_path / "D", PRESETS["default"], until=60,
-                         on_batch=live.batch, on_status=live.status)
+        done: list = []
+        run = threading.Thread(target=lambda: done.append(capture(
+            FdSource(r), tmp_path / "D", PRESETS["default"], until=60, on_batch=live.batch,
+            on_status=live.status)), daemon=True)
+        run.start()
+        # Mid-capture: a turn under way after 12 poses, its rate known (the view at 10 Hz).
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not done:
+            st = live.state
+            peak = ((st.turn or {}).get("turn_peak_dps") or 0) if st is not None else 0
+            if st is not None and st.orientations >= 12 and st.state == "moving" and peak > 30:
+                break
+            time.sleep(0.02)
+        assert not done, "the capture ended before the 12th pose's turn"
+        time.sleep(0.15)  # the view's next send, the turn still under way
+        mid = _shot(client)
+        run.join(60)
         live.close()
-        assert report.stopped == "targets met"
+        assert done and done[0].stopped == "targets met"
         png = _shot(client)
-    img = _image(png)
-    assert drawn(img, "2D") > 0.002  # the signals and the detector's plots
-    _keep("live-view.png", png)
-    assert np.isfinite(img).all()
+    for shot, name in ((mid, "live.png"), (png, "live-view.png")):
+        img = _image(shot)
+        assert drawn(img, "2D") > 0.002  # the signals and the detector's plots
+        assert np.isfinite(img).all()
+        _keep(name, shot)
