@@ -23,7 +23,7 @@ import numpy as np
 
 # Sokal's window: the smallest lag W with W >= WINDOW_C * tau(W), tau(W) = 1 + 2 sum_1^W rho;
 # 5 is the usual choice for an exponential decay; these residuals' autocorrelation has a long,
-# slow tail (a field along a path: 0.1-0.2 at 2 s on BROAD), and 8 reaches it (measured on
+# slow tail (a field along a path: 0.06-0.14 at 1.75 s on BROAD), and 8 reaches it (measured on
 # four real recordings, bench/mag_se.md).
 WINDOW_C = 8.0
 # At least this many blocks: fewer make the variance estimate itself too noisy (9 degrees of
