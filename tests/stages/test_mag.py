@@ -194,6 +194,8 @@ def test_synth_writes_a_magnetometer_that_calibrate_fits_and_writes_for_a_script
     assert main(["calibrate", str(out), "--out", str(cal)]) == 0
     sec = json.loads(cal.read_text())["magnetometer"]
     assert sec["calibrated"] and 14 <= sec["quality"]["still_blocks"] < 20  # disturbed: out
+    # white noise: the standard errors are those of independent samples (M8s)
+    assert 0.7 < sec["quality"]["std_design_effect"] < 1.4
     assert sec["unit"] is None  # mx, my, mz: a column name without a unit
     for key in ("M", "b", "field", "dip_deg"):
         err = np.abs(np.subtract(sec[key], truth[key]))

@@ -5,6 +5,7 @@ full-sphere recording judged half against half, and the numerics on a regression
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import h5py
 import numpy as np
@@ -121,5 +122,12 @@ def test_the_full_sphere_recordings_halves_agree_within_their_standard_errors(sh
     white = (va - vb) / np.hypot(sa / np.sqrt(fits[0].se_design_effect),
                                  sb / np.sqrt(fits[1].se_design_effect))
     assert np.sqrt(np.mean(z * z)) < 2.5 and np.sqrt(np.mean(white * white)) > 4
-    # measured 184 and 149, blocks of 410 and 204 samples (5 and 3 s)
+    # measured 184 and 149, blocks of 409 and 204 samples (5.3 and 2.6 s)
     assert all(50 < f.se_design_effect < 500 for f in fits)
+    assert 4 < fits[0].se_block_s < 7 and 2 < fits[1].se_block_s < 4
+    # the overview says so, and calib.json carries the factor
+    from imucal.report import _magnetometer
+
+    line = _magnetometer(SimpleNamespace(session=SimpleNamespace(magnetometer=True),
+                                         magnetometer=fits[0], warnings=()))[0].text
+    assert "the norm's error is slow (correlated over 5.3 s): standard errors 14x" in line
