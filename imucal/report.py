@@ -28,6 +28,10 @@ from imucal.stages.quality import BeforeAfter
 from imucal.stages.triads import angle_deg
 from imucal.warning import RunWarning
 
+# M8s's design effect from which the overview says the magnetometer's residual is slow (its
+# standard errors twice the white ones or more)
+SAID_DESIGN_EFFECT = 4.0
+
 
 @dataclass(frozen=True)
 class Line:
@@ -165,9 +169,14 @@ def _magnetometer(result: Result) -> tuple[Line, ...]:
             else f" ({fmt(q.norm_rms_held_out_pct, '.2g')} % held out)")
     left = (f"; {len(fit.disturbances)} disturbed interval(s) left out"
             if fit.disturbances else "")
+    # M8s: a residual that follows the path makes the samples far fewer than they look; said
+    # where it doubles the standard errors or more (white noise: about 1x)
+    slow = ("" if fit.se_design_effect < SAID_DESIGN_EFFECT else
+            f"; the norm's error is slow (correlated over {fit.se_block_s:.2g} s): standard "
+            f"errors {np.sqrt(fit.se_design_effect):.0f}x those of independent samples")
     return (Line("magnetometer", f"{fit.stream}: field {fmt(fit.field, '.4g')} {unit}{dip}; "
                                  f"|m| within {fmt(q.norm_rms_pct, '.2g')} % of it{held}; "
-                                 f"{q.coverage:.0%} of directions reached{left}"),)
+                                 f"{q.coverage:.0%} of directions reached{left}{slow}"),)
 
 
 def _triads(result: Result) -> tuple[Line, ...]:

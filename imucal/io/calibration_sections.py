@@ -56,7 +56,13 @@ def magnetometer_section(result: Result) -> dict:
                                              "recording's time judged by the other's fit"},
                     "dip_spread_deg": _f(q.dip_spread_deg), "coverage": _f(q.coverage),
                     "missing": q.missing, "still_blocks": q.blocks,
-                    "heading_std_deg": _f(q.heading_std_deg)},
+                    "heading_std_deg": _f(q.heading_std_deg),
+                    "std_design_effect": _f(fit.se_design_effect),
+                    "std_block_s": _f(fit.se_block_s),
+                    "std_note": "the ellipsoid's standard errors are sqrt(std_design_effect) "
+                                "times those of independent samples: the norm residual is "
+                                "correlated along the recording, measured by a block "
+                                "jackknife of std_block_s seconds (method.md M8s)"},
         "samples": fit.samples, "samples_used": int(fit.used.sum()), "start": fit.start,
         "soft_iron_estimated": fit.soft_iron,
         "disturbances": [d.to_dict() for d in fit.disturbances]}}

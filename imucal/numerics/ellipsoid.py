@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imucal.numerics.block_jackknife import design_effect_cov
+
 # The 6 free entries of a symmetric 3x3 matrix, in the parameter vector's order.
 SYM_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 # Residual evaluations the refinement may take: a well-posed fit converges in under 10; points
@@ -83,10 +85,14 @@ def algebraic_fit(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
 
 @dataclass(frozen=True)
 class EllipsoidFit:
-    """The maximum-likelihood ``G`` and ``c`` under white noise on ``|G (x - c)|``: the
-    parameters ``p = (g11, g12, g13, g22, g23, g33, c1, c2, c3)`` in the points' unit, their
-    covariance ``cov`` (9, 9) (``s^2 (J'J)^-1``, ``s^2`` the residuals' variance with 9 degrees
-    of freedom taken), the residuals' RMS (a fraction of the radius) and the points used."""
+    """The least-squares ``G`` and ``c`` of ``|G (x - c)| - 1``: the parameters ``p = (g11,
+    g12, g13, g22, g23, g33, c1, c2, c3)`` in the points' unit and their covariance ``cov``
+    (9, 9): ``cov_white``, what independent residuals would give (``s^2 (J'J)^-1``, ``s^2``
+    the residuals' variance with 9 degrees of freedom taken), times ``deff``, the design
+    effect of the residuals' correlation along the points' order, measured by a block
+    jackknife of ``block`` points (:mod:`imucal.numerics.block_jackknife`; about 1 for
+    independent residuals); the residuals' RMS (a fraction of the radius) and the points
+    used."""
 
     G: np.ndarray
     c: np.ndarray
@@ -96,6 +102,9 @@ class EllipsoidFit:
     start: str  # how the algebraic start was made: "ellipsoid" or "sphere"
     cond: float  # condition number of the Jacobian (normalised parameters)
     model: str = "ellipsoid"  # "sphere": G held at I / r, only c and r fitted
+    cov_white: np.ndarray | None = None
+    deff: float = 1.0
+    block: int = 1
 
     @property
     def params(self) -> np.ndarray:
@@ -132,16 +141,16 @@ def ml_fit(x: np.ndarray, G0: np.ndarray, c0: np.ndarray, start: str = "given",
         p = least_squares(lambda q: _res_jac(q, xn)[0], p, jac=lambda q: _res_jac(q, xn)[1],
                           method="lm", x_scale="jac", max_nfev=MAX_NFEV).x
     r, J = _res_jac(p, xn)
-    dof = max(len(xn) - 9, 1)
-    s2 = float(r @ r) / dof
-    cov_n = s2 * np.linalg.pinv(J.T @ J)
+    # method.md §9: the residual is slow on real data, its rows not independent
+    cov_n, white_n, deff, block = design_effect_cov(J, r, len(xn) - 9)
     # back to the points' unit: G = G_n / s, c = mu + s c_n (linear in the parameters)
-    scale = np.r_[np.full(6, 1.0 / s), np.full(3, s)]
-    cov = cov_n * np.outer(scale, scale)
+    unit = np.r_[np.full(6, 1.0 / s), np.full(3, s)]
+    scale = np.outer(unit, unit)
     sv = np.linalg.svd(J, compute_uv=False)
-    return EllipsoidFit(G=sym_from_vec(p[:6]) / s, c=mu + s * p[6:9], cov=cov,
+    return EllipsoidFit(G=sym_from_vec(p[:6]) / s, c=mu + s * p[6:9], cov=cov_n * scale,
                         rms=float(np.sqrt(np.mean(r * r))), n=len(xn), start=start,
-                        cond=float(sv[0] / max(sv[-1], 1e-300)))
+                        cond=float(sv[0] / max(sv[-1], 1e-300)),
+                        cov_white=white_n * scale, deff=deff, block=block)
 
 
 def fit_ellipsoid(x: np.ndarray, robust: bool = False) -> EllipsoidFit:
@@ -219,18 +228,18 @@ def sphere_fit(x: np.ndarray) -> EllipsoidFit:
             for _ in range(BIAS_DRAWS)]
     q = q - (np.mean(sims, axis=0) - q)
     r, J = _sphere_res_jac(q, xn)
-    s2 = float(r @ r) / max(len(xn) - 4, 1)
-    cov4 = s2 * np.linalg.pinv(J.T @ J)
+    cov4, white4, deff, block = design_effect_cov(J, r, len(xn) - 4)  # as ml_fit's
     radius, c = q[0] * s, mu + s * q[1:4]
     T = np.zeros((9, 4))  # d(g11, g12, g13, g22, g23, g33, c) / d(r, c), the points' unit
     T[[0, 3, 5], 0] = -1.0 / radius ** 2
     T[6:9, 1:4] = np.eye(3)
     scale = np.diag([s, s, s, s])  # (r, c) normalised -> the points' unit
     cov = T @ scale @ cov4 @ scale @ T.T
+    white = T @ scale @ white4 @ scale @ T.T
     sv = np.linalg.svd(J, compute_uv=False)
     return EllipsoidFit(G=np.eye(3) / radius, c=c, cov=cov, rms=float(np.sqrt(np.mean(r * r))),
                         n=len(xn), start="sphere", cond=float(sv[0] / max(sv[-1], 1e-300)),
-                        model="sphere")
+                        model="sphere", cov_white=white, deff=deff, block=block)
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:

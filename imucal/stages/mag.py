@@ -193,6 +193,12 @@ class MagFit:
     block_times: np.ndarray | None = None
     # what determined R_am: the still blocks, the gyroscope's turns or both (None without R_am)
     alignment: Alignment | None = None
+    # the factor by which the residual's correlation along the recording scales the
+    # ellipsoid's covariance over what independent samples would give (method.md §9; about 1
+    # for white noise, 70-360 on the shared real recordings), and the block length of the
+    # jackknife that measured it (s: the fit's points in it times their mean spacing)
+    se_design_effect: float = 1.0
+    se_block_s: float = 0.0
 
     @property
     def G(self) -> np.ndarray:
@@ -684,6 +690,8 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
                   start=fit.start, disturbances=tuple(disturbances), quality=quality,
                   block_dip_deg=block_dip, block_used=block_used, warnings=tuple(warnings),
                   soft_iron=fit.model != "sphere", alignment=None if R is None else alignment,
+                  se_design_effect=fit.deff,
+                  se_block_s=float(fit.block * (tk[-1] - tk[0]) / max(fit.n - 1, 1)),
                   block_times=None if block_times is None
                   else np.array(block_times, float).reshape(-1, 2))
 

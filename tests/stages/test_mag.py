@@ -62,6 +62,11 @@ def test_standard_errors_are_honest_over_twenty_seeds():
     R_am's rotation about z comes out conservative; through the whole pipeline, detected
     blocks and calibrated gravity, 0.7-1.4 on seeds 0-19). Sessions of 16 poses."""
     fits = [_synthetic(seed, poses=16) for seed in range(20)]
+    # white noise: M8s's design effect leaves the white standard errors as they were, within
+    # its own noise (measured 0.93-1.12 of them, RMS 1.02; tests/stages/test_mag_se.py has
+    # the coloured case)
+    root = np.sqrt([f.se_design_effect for f, _ in fits])
+    assert np.all((root > 0.85) & (root < 1.18)) and abs(np.sqrt(np.mean(root ** 2)) - 1) < 0.05
     z = np.array([_z(*f) for f in fits])
     rms = np.sqrt(np.mean(z * z, axis=0))
     assert np.all((rms < 1.5) & (rms > 1 / 1.5)), rms
@@ -189,6 +194,8 @@ def test_synth_writes_a_magnetometer_that_calibrate_fits_and_writes_for_a_script
     assert main(["calibrate", str(out), "--out", str(cal)]) == 0
     sec = json.loads(cal.read_text())["magnetometer"]
     assert sec["calibrated"] and 14 <= sec["quality"]["still_blocks"] < 20  # disturbed: out
+    # white noise: the standard errors are those of independent samples (M8s)
+    assert 0.7 < sec["quality"]["std_design_effect"] < 1.4
     assert sec["unit"] is None  # mx, my, mz: a column name without a unit
     for key in ("M", "b", "field", "dip_deg"):
         err = np.abs(np.subtract(sec[key], truth[key]))
