@@ -366,21 +366,6 @@ def _block_means(x: np.ndarray, t: np.ndarray, keep: np.ndarray, block_times: np
     return means, ok
 
 
-def _closed_form_rotation(u: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, float]:
-    """``R`` (a rotation) and ``sin(dip)`` from ``u_k' R h_k = -sin(dip)``: linear in the 9
-    entries of ``R`` and ``sin(dip)`` (their null vector, up to scale and sign), the matrix
-    projected on the rotations. Axes of opposite handedness cannot be told from this: a
-    mirror ``R'`` fits as the rotation ``-R'`` with the dip's sign turned."""
-    D = np.column_stack([(u[:, :, None] * h[:, None, :]).reshape(len(u), 9), np.ones(len(u))])
-    A = np.linalg.svd(D, full_matrices=False)[2][-1][:9].reshape(3, 3)
-    if np.linalg.det(A) < 0:
-        A = -A
-    U, _, Vt = np.linalg.svd(A)
-    R = U @ Vt
-    s = -float(np.mean(np.einsum("ki,ij,kj->k", u, R, h)))
-    return R, float(np.clip(s, -1.0, 1.0))
-
-
 def _block_residuals(p: np.ndarray, R0: np.ndarray, raw_means: np.ndarray, u: np.ndarray
                      ) -> np.ndarray:
     """``u_k . exp([d]x) R0 h_k + sin(dip)`` for ``p = (g6, b3, d3, dip)``."""
@@ -596,7 +581,7 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
             h = _unit((means[ok] - fit.c) @ fit.G)
             try:
                 if used_turns is None:
-                    R0, s0 = _closed_form_rotation(u_all[ok], h)
+                    R0, s0 = closed_form(u_all[ok], h)
                     p, R, cov = _sequential(fit, R0, float(np.arcsin(s0)), means[ok],
                                             u_all[ok])
                     alignment = _still_alignment(p, R, means[ok], u_all[ok])

@@ -83,17 +83,23 @@ def rotation(v: np.ndarray) -> np.ndarray:
     return quat.to_matrix(quat.from_rotvec(np.asarray(v, float)))
 
 
-def closed_form(u: np.ndarray, h: np.ndarray, a: np.ndarray, b: np.ndarray, Qt: np.ndarray
+def closed_form(u: np.ndarray, h: np.ndarray, a: np.ndarray | None = None,
+                b: np.ndarray | None = None, Qt: np.ndarray | None = None
                 ) -> tuple[np.ndarray, float]:
-    """``R`` and ``sin(dip)`` from M8's still rows ``(u_k kron h_k) . vec(R) + s = 0`` and
-    M8t's turn rows ``(I kron h_b' - Qt kron h_a') vec(R) = 0`` together (linear in the nine
-    entries of ``R`` and ``s``: their null vector), projected on the rotations."""
-    still = np.column_stack([(u[:, :, None] * h[:, None, :]).reshape(len(u), 9),
-                             np.ones(len(u))])
-    eye = np.eye(3)
-    turn = (np.einsum("il,kj->kilj", eye, h[b]) - np.einsum("kil,kj->kilj", Qt, h[a]))
-    turn = np.concatenate([turn.reshape(len(a) * 3, 9), np.zeros((len(a) * 3, 1))], axis=1)
-    D = np.vstack([still, turn])
+    """``R`` and ``sin(dip)`` from M8's still rows ``(u_k kron h_k) . vec(R) + s = 0`` and,
+    given turns (``a``, ``b``, ``Qt``), M8t's turn rows ``(I kron h_b' - Qt kron h_a') vec(R)
+    = 0`` together (linear in the nine entries of ``R`` and ``s``: their null vector, up to
+    scale and sign), projected on the rotations. Axes of opposite handedness cannot be told
+    from the still rows alone: a mirror ``R'`` fits as the rotation ``-R'`` with the dip's
+    sign turned."""
+    D = np.column_stack([(u[:, :, None] * h[:, None, :]).reshape(len(u), 9),
+                         np.ones(len(u))])
+    if a is not None and len(a):
+        eye = np.eye(3)
+        turn = (np.einsum("il,kj->kilj", eye, h[b]) - np.einsum("kil,kj->kilj", Qt, h[a]))
+        turn = np.concatenate([turn.reshape(len(a) * 3, 9), np.zeros((len(a) * 3, 1))],
+                              axis=1)
+        D = np.vstack([D, turn])
     A = np.linalg.svd(D, full_matrices=False)[2][-1][:9].reshape(3, 3)
     if np.linalg.det(A) < 0:
         A = -A
