@@ -23,7 +23,7 @@ from typing import Any
 from imucal.errors import ImucalError
 from imucal.fleet import naming
 from imucal.fleet.index import DEVICE_LOCK, NAME, STAMP, SUFFIX, file_name, iso, locked
-from imucal.fleet.store import _second, _stored_key, content_key, device_id
+from imucal.fleet.store import _second, _stored_key, content_key, device_folder, device_id
 
 
 @dataclass(frozen=True)
@@ -65,12 +65,7 @@ def write_with_store(out: str | os.PathLike, doc: dict[str, Any], *, store: Path
     doc = {k: v for k, v in doc.items() if k != "store"} | {"device": dev, "recorded_at": iso(at),
                  "calibrated_at": datetime.now(timezone.utc).isoformat()}
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
-    folder = store / dev
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ImucalError(f"cannot create the device folder ({e.strerror or e})",
-                          source=str(folder)) from None
+    folder = device_folder(store, dev)
     key = content_key(doc)
     stamp = at.strftime(STAMP)
     with locked(folder / DEVICE_LOCK):  # another add picks its name after this one's is taken

@@ -140,6 +140,17 @@ def _when(doc: dict[str, Any], path: Path, when: datetime | None) -> tuple[datet
     return datetime.fromtimestamp(path.stat().st_mtime, tz=timezone.utc), "file mtime"
 
 
+
+def device_folder(root: Path, dev: str) -> Path:
+    """The device's folder in the store, made if new (a failure is one line naming it)."""
+    folder = root / dev
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ImucalError(f"cannot create the device folder ({e.strerror or e})",
+                          source=str(folder)) from None
+    return folder
+
 def add(store: str | os.PathLike, calib: str | os.PathLike, device: str | None = None,
         when: datetime | None = None, *, update_index: bool = True) -> Added:
     """Store a copy of ``calib`` under ``STORE/DEVICE/`` named by its time. The device defaults
@@ -157,12 +168,7 @@ def add(store: str | os.PathLike, calib: str | os.PathLike, device: str | None =
     at, how = _when(doc, calib, when)
     at = _second(at)
     key = content_key(doc)
-    folder = root / dev
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ImucalError(f"cannot create the device folder ({e.strerror or e})",
-                          source=str(folder)) from None
+    folder = device_folder(root, dev)
     stamp = at.strftime(STAMP)
     with locked(folder / DEVICE_LOCK):
         _same_unit(folder, dev, doc, device, calib)
