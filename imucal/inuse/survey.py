@@ -7,13 +7,17 @@ can be told before the device has one.
 The signals are read as they are, in the recording's own units (a calibration moves |g| and
 the orientations by a few per cent at most, well inside the 10 % and 0.3 g the rules use), and
 the sensor's noise, which a calibration stores, is learned from the recording's quietest
-windows, as ``check`` does with a calibration that stores none. That is the sensor's noise
+windows, as ``check`` does with a calibration that stores none. The gyroscope's rule (a mean
+rate below 3 deg/s) would refuse every moment of a gyroscope whose raw bias exceeds it (MEMS
+parts leave the factory with several deg/s), so it is applied to the rate less the median of
+the moments' mean rates, found by a first pass on the accelerometer alone. That is the noise
 only if the recording rests somewhere: a log whose motors run from its first sample to its
 last teaches the detector the vibration, and the survey says so when the level learned is
 beyond what a MEMS accelerometer at rest shows."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +25,8 @@ import numpy as np
 from imucal.errors import ImucalError
 from imucal.inuse.check import MIN_ACC_ORIENTATIONS, MIN_GYRO_STILL_S
 from imucal.inuse.estimate import AXES, COVERAGE_G, MIN_ACC_MOMENTS, coverage
-from imucal.inuse.moments import Moments, find_moments
+from imucal.inuse.moments import ModelRows, Moments, find_moments
+from imucal.models import SensorModel
 from imucal.session import STANDARD_GRAVITY, Session
 
 # Above this white-noise density a "quietest" level is not an accelerometer at rest: MEMS
@@ -44,6 +49,12 @@ class Survey:
     gyro: bool  # the gyroscope's moments were judged too (its unit known)
     noise_mg: float  # the accelerometer's noise per sample and axis learned, mg (nan: none)
     notes: tuple[str, ...]
+    gyro_offset: np.ndarray  # (3,) rad/s: the median rate at rest taken off before the rule
+
+    @property
+    def rate_at_rest(self) -> np.ndarray | None:
+        """(B, 3) rad/s: M10's rate at rest of each moment as recorded (the raw bias)."""
+        return None if self.moments.rate is None else self.moments.rate + self.gyro_offset
 
     @property
     def noise_density(self) -> float:
@@ -91,7 +102,7 @@ class Survey:
     def to_dict(self) -> dict:
         m = self.moments
         rng = self.axis_range
-        rate_deg = None if m.rate is None else np.degrees(m.rate)
+        rate_deg = None if self.rate_at_rest is None else np.degrees(self.rate_at_rest)
         return {
             "exit_code": self.exit_code,
             "still_moments": {
@@ -127,8 +138,9 @@ class Survey:
         out += [f"  refused       {v} run(s): {k}" for k, v in m.rejected.items()]
         for i, (a, b) in enumerate(m.times):
             u = m.cal_mean[i] / self.g
-            rate = "" if m.rate is None else (
-                f", rate at rest {np.degrees(np.linalg.norm(m.rate[i])):.3f} deg/s")
+            r = None if self.rate_at_rest is None else np.degrees(self.rate_at_rest[i])
+            rate = "" if r is None else (
+                f", rate at rest ({r[0]:+.3f}, {r[1]:+.3f}, {r[2]:+.3f}) deg/s")
             out.append(f"  {a:9.2f}-{b:<9.2f} s {b - a:6.1f} s  mean ({u[0]:+.3f}, {u[1]:+.3f}, "
                        f"{u[2]:+.3f}) g{rate}")
         rng = self.axis_range
@@ -173,18 +185,29 @@ def survey(session: Session) -> Survey:
     if session.has_gyro and not gyro:
         notes.append("the gyroscope is in raw counts: its moments are not judged (no rate "
                      "limit, no bias); give --gyro-unit")
-    m = find_moments(session.acc, session.acc, np.asarray(session.t_acc),
-                     session.gyro if gyro else None, session.t_gyro if gyro else None, g,
-                     None, session.acc_rate)
+    t = np.asarray(session.t_acc)
+    m = find_moments(session.acc, session.acc, t, None, None, g, None, session.acc_rate)
+    offset = np.zeros(3)
+    if gyro and m.count:
+        g0 = np.searchsorted(session.t_gyro, m.times[:, 0])
+        g1 = np.searchsorted(session.t_gyro, m.times[:, 1], side="right")
+        means = np.array([np.mean(session.gyro[a:b], axis=0) for a, b in zip(g0, g1) if b > a])
+        offset = np.median(means, axis=0) if len(means) else offset
+        less = ModelRows(session.gyro, SensorModel(T=np.eye(3), K=np.ones(3), b=offset))
+        m = find_moments(session.acc, session.acc, t, less, session.t_gyro, g, None,
+                         session.acc_rate)
+        notes.append(f"the gyroscope's 3 deg/s rule on the rate less the moments' median, "
+                     f"({', '.join(f'{x:+.3f}' for x in np.degrees(offset))}) deg/s")
     # M1 of white noise is 3 sigma^4 (three axes of variance sigma^2, squared).
     sigma_mg = (m.level / 3.0) ** 0.25 / g * 1e3 if np.isfinite(m.level) else float("nan")
     s = Survey(moments=m, g=g, unit=session.acc_unit, rate=session.acc_rate,
-               duration=session.duration, gyro=gyro, noise_mg=sigma_mg, notes=tuple(notes))
+               duration=session.duration, gyro=gyro, noise_mg=sigma_mg, notes=tuple(notes),
+               gyro_offset=offset)
     if not s.noise_plausible:
-        s = Survey(**{**s.__dict__, "notes": s.notes + (
+        s = dataclasses.replace(s, notes=s.notes + (
             f"the quietest windows' noise, {s.noise_density:.2g} mg/sqrt(Hz), is above any "
             f"MEMS accelerometer's at rest ({NOISE_CEILING_MG_RT_HZ:g} and less): the "
             "recording may never rest (motors running throughout), and its moments be "
             "vibration; a calibration with the sensor's noise (imucal check CALIB.json "
-            "RECORDING) tells them apart",)})
+            "RECORDING) tells them apart",))
     return s
