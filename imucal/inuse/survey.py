@@ -34,6 +34,7 @@ from imucal.session import STANDARD_GRAVITY, Session
 # about 0.45; the motors of a vehicle idling on the ground give several (a 100 Hz log, 20-50
 # mg of vibration: 2-5 mg/sqrt(Hz)).
 NOISE_CEILING_MG_RT_HZ = 1.0
+SLOW_HZ = 20.0  # below, a 0.5 s window holds too few samples for a variance (M1)
 
 
 @dataclass(frozen=True)
@@ -185,6 +186,10 @@ def survey(session: Session) -> Survey:
     if session.has_gyro and not gyro:
         notes.append("the gyroscope is in raw counts: its moments are not judged (no rate "
                      "limit, no bias); give --gyro-unit")
+    if session.acc_rate < SLOW_HZ:  # PX4's sensor_accel topics are logged at 1 Hz
+        notes.append(f"the accelerometer is logged at {session.acc_rate:.3g} Hz, too slow to "
+                     "see a moment's noise: 'imucal inspect' lists the file's streams, --acc "
+                     "and --gyro take a faster one")
     t = np.asarray(session.t_acc)
     m = find_moments(session.acc, session.acc, t, None, None, g, None, session.acc_rate)
     offset = np.zeros(3)

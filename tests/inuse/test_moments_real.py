@@ -82,6 +82,8 @@ def test_px4_log_rests_throughout_and_its_one_moment_spans_the_land_detectors_fl
     assert (b - a) / s.duration > 0.85  # 5.84 of 6.50 s: the log's first 0.16 s is a gap
     assert v.noise_plausible and v.noise_mg < 4.0  # measured 2.76 mg (0.19 mg/sqrt(Hz))
     assert v.gyro_enough and not v.acc_enough and v.exit_code == 2  # one orientation
+    slow = survey(imucal.load_session(path))  # the first IMU's own topics: 1 Hz, 6 samples
+    assert slow.moments.count == 0 and any("'imucal inspect'" in n for n in slow.notes)
     # the rate at rest against the EKF's bias for the same IMU (x: converged; y, z are not:
     # y still falls 0.004 deg/s a second, z reads 3.2-4.3 deg/s while the magnetometer's
     # heading holds within 0.2 deg over the moment)
