@@ -225,7 +225,9 @@ def test_a_flight_that_never_rests_is_doubted_without_a_calibration():
     cut = calibrated(dataclasses.replace(session, acc=session.acc[k], t_acc=session.t_acc[k],
                                          gyro=session.gyro[k], t_gyro=session.t_gyro[k]))
     v = survey(cut)
-    assert v.noise_density > NOISE_CEILING_MG_RT_HZ and not v.noise_plausible
+    assert v.moments.count >= 1  # the idling before take-off and after landing
+    assert v.noise_density > NOISE_CEILING_MG_RT_HZ and not v.noise_plausible  # 2.3 (the
+    # sensor's own: 0.27 mg/sqrt(Hz); seeds 0-3 cut: 2.3-3.1)
     assert v.exit_code == 2 and any("may never rest" in n for n in v.notes)
 
 
