@@ -248,3 +248,22 @@ def test_a_gyroscope_biased_beyond_the_rate_rule_keeps_its_moments():
                                atol=np.radians(0.1))
     plain = check(identity("g", 1.0), Stored(), s).moments  # the rule on the raw rate
     assert plain.count == 0 and plain.rejected["mean rate above 3 deg/s"] == v.moments.count
+
+
+def test_a_coarse_quantiser_at_rest_still_teaches_a_noise_level():
+    """An 8-bit accelerometer at +-2 g (16 mg a step, 1 mg of noise) lies flat on most
+    windows of a rest: M1 there is rounding error, and the quietest 1 % of windows would make
+    the level about 0 and nothing still. Left out as §1 leaves them, the level comes from the
+    windows where a step flips: the rests are found (27 of 30), and nothing else."""
+    from imucal.inuse.everyday import make_everyday
+
+    session, truth = make_everyday("desk", minutes=5, seed=4, acc_noise=0.001)
+    step = 1.0 / 64
+    acc = np.round(truth.stored_acc.apply(session.acc) / step) * step
+    s = dataclasses.replace(session, acc=acc, gyro=truth.stored_gyro.apply(session.gyro))
+    v = survey(s)
+    m = v.moments
+    assert m.count >= 0.8 * len(truth.still) and v.noise_mg > 1.0  # measured 27 of 30
+    for a, b in m.times:
+        assert ((truth.still[:, 0] - 0.35 <= a) & (truth.still[:, 1] + 0.35 >= b)).any()
+        assert not np.any((truth.taps >= a - 0.02) & (truth.taps < b))
