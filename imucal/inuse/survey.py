@@ -7,13 +7,13 @@ can be told before the device has one.
 The signals are read as they are, in the recording's own units (a calibration moves |g| and
 the orientations by a few per cent at most, well inside the 10 % and 0.3 g the rules use), and
 the sensor's noise, which a calibration stores, is learned from the recording's quietest
-windows, as ``check`` does with a calibration that stores none. The gyroscope's rule (a mean
-rate below 3 deg/s) would refuse every moment of a gyroscope whose raw bias exceeds it (MEMS
-parts leave the factory with several deg/s), so it is applied to the rate less the median of
-the moments' mean rates, found by a first pass on the accelerometer alone. That is the noise
+windows, as ``check`` does with a calibration that stores none. That is the sensor's noise
 only if the recording rests somewhere: a log whose motors run from its first sample to its
 last teaches the detector the vibration, and the survey says so when the level learned is
-beyond what a MEMS accelerometer at rest shows."""
+beyond what a MEMS accelerometer at rest shows. The gyroscope's rule (a mean rate below 3
+deg/s) would refuse every moment of a gyroscope whose raw bias exceeds it (MEMS parts leave
+the factory with several deg/s), so it is applied to the rate less the median of the moments'
+mean rates, found by a first pass on the accelerometer alone."""
 
 from __future__ import annotations
 
