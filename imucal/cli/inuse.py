@@ -83,8 +83,17 @@ def _load(calibration: Path, recording: Path, options: dict[str, Any], progress:
 @app.command("check")
 @shared_options(CHECK_INPUT_OPTIONS)
 def check_cmd(
-    calibration: CalibArg,
-    recording: RecordingArg,
+    calibration: Annotated[Path, typer.Argument(
+        metavar="CALIB.json", show_default=False,
+        help="Calibration file from 'imucal calibrate' (with --moments-only: the recording).")],
+    recording: Annotated[Path | None, typer.Argument(
+        metavar="RECORDING", show_default=False,
+        help="A recording of ordinary use, in any format 'imucal calibrate' reads.")] = None,
+    moments_only: Annotated[bool, typer.Option(
+        "--moments-only", help="Without a calibration: 'imucal check --moments-only "
+        "RECORDING' lists the still moments found (the noise learned from the recording) and "
+        "whether they would let check judge and refresh update; exit 0 enough, 2 not.")
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the figures as JSON.")] = False,
     acc_limit: Annotated[float, typer.Option(
         "--acc-limit", metavar="MG", callback=positive,
@@ -102,8 +111,18 @@ def check_cmd(
     ordinary use (method.md §10).
 
     Exit codes: 0 holds, 1 drifted (which parameters, by how much), 2 cannot tell (too few
-    still moments or orientations); 1 also for bad input, with one line saying so.
+    still moments or orientations); 1 also for bad input, with one line saying so. With
+    --moments-only RECORDING, no calibration: the still moments and whether they would
+    suffice (0 yes, 2 no).
     """
+    if moments_only:
+        return _moments_only(calibration, recording, as_json, rrd, options, verbose,
+                             (acc_limit, gyro_limit))
+    if recording is None:
+        from imucal.cli.options import usage_error
+
+        raise usage_error("give the calibration and the recording (or --moments-only "
+                          "RECORDING)", "'RECORDING'")
     from imucal.io.atomic import Transaction
 
     tx = Transaction([rrd], inputs=[calibration, recording])  # checked before any work
@@ -130,6 +149,39 @@ def check_cmd(
     else:
         print("\n".join(_check_lines(result, calibration, session, notes)
                         + ([f"wrote {rrd}"] if save is not None else [])))
+    return result.exit_code
+
+
+def _moments_only(recording: Path, extra: Path | None, as_json: bool, rrd: str | None,
+                  options: dict[str, Any], verbose: bool, limits: tuple[float, float]) -> int:
+    """``check --moments-only RECORDING``: imucal.inuse.survey, no calibration."""
+    from imucal.cli.options import usage_error
+
+    if extra is not None:
+        raise usage_error("--moments-only takes the recording alone, no calibration",
+                          "'RECORDING'")
+    if rrd is not None or limits != (ACC_LIMIT_MG, GYRO_LIMIT_DEG_S):
+        raise usage_error("--rrd, --acc-limit and --gyro-limit judge a calibration: not with "
+                          "--moments-only", "'--moments-only'")
+    import imucal
+    from imucal.inuse.survey import survey
+
+    load_kw = load_kwargs(**pick(options, INPUT_OPTIONS))
+    check_inputs([recording, load_kw["gyro_path"]])
+    progress = Progress(verbose)
+    with progress.stage(f"loading {recording.name}"):
+        session = imucal.load_session(recording, **load_kw)
+    with progress.stage("finding still moments"):
+        result = survey(session)
+    if as_json:
+        import json
+
+        data = result.to_dict() | {"recording": session.source}
+        data["notes"] += list(session.notes)
+        print(json.dumps(data, indent=2, allow_nan=False))
+    else:
+        print("\n".join([f"recording       {session.source}"] + result.lines()
+                        + [f"  - {n}" for n in session.notes]))
     return result.exit_code
 
 

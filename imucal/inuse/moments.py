@@ -29,6 +29,7 @@ MAX_NORM_OFF = 0.10  # a moment's mean norm within 10 % of |g|
 MIN_MOMENT_SAMPLES = 10  # whatever the rate: a mean and a scatter need a few samples
 EDGE_S = 0.5  # the ends of a moment whose gravity directions give its tilt (M10)
 EMPTY = np.zeros(0, np.int64)
+FLAT_SIGMA_G = 1e-5  # below any sensor's noise per sample (10 ug); far above rounding
 
 
 class ModelRows:
@@ -100,7 +101,11 @@ def find_moments(acc_raw, acc_cal, t_acc: np.ndarray, gyro_cal, t_gyro: np.ndarr
                       "axis)")
     else:
         s2 = np.concatenate([s for _, _, s in stat.spans()])
-        level = float(np.quantile(s2, QUIET_QUANTILE))
+        # Flat windows (every axis constant: a coarse quantiser at rest; M1 is then rounding
+        # error) say nothing of the noise, as in §1's quiet level; kept, they make the level
+        # about 0 and nothing still.
+        s2 = s2[s2 > 3.0 * (FLAT_SIGMA_G * g) ** 4]
+        level = float(np.quantile(s2, QUIET_QUANTILE)) if len(s2) else 0.0
         level_from = "the quietest 1 % of the recording's windows (no noise stored)"
     threshold = K_INUSE * level
     runs = streamed_still_runs(stat, threshold, None, EMPTY)

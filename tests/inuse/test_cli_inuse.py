@@ -138,3 +138,51 @@ def test_the_limits_are_the_users_to_set(walk, capsys):
     rc, _, err = run(capsys, "check", walk / "walk.mat.calib.json", walk / "walk.mat",
                      "--gyro-limit", "-1")
     assert rc == 2 and "positive" in err
+
+
+def test_moments_only_without_a_calibration(walk, capsys, tmp_path):
+    """``check --moments-only RECORDING``: the still moments of the walk as recorded (its
+    rests, in as many orientations), the noise learned from it, and what they would suffice
+    for; exit 0 when check could judge both sensors, 2 when not (one rest of a short walk)."""
+    truth = json.loads((walk / "walk.mat.truth.json").read_text())
+    rc, out, _ = run(capsys, "check", "--moments-only", walk / "walk.mat", "--json")
+    data = json.loads(out)
+    assert rc == 0 and data["exit_code"] == 0
+    moments = data["still_moments"]
+    assert moments["count"] >= 10 and moments["orientations"] >= 6
+    still = np.array(truth["still_intervals"])
+    for m in moments["moments"]:  # every moment inside a rest of the truth
+        a, b = m["t"]
+        assert ((still[:, 0] <= a + 0.35) & (still[:, 1] >= b - 0.35)).any()
+    assert moments["detector"]["reference_from"].startswith("the quietest 1 %")
+    noise = data["noise_learned"]  # the synthetic sensor's 3 mg per sample
+    assert 2.0 < noise["mg_per_sample"] < 3.5 and noise["plausible_at_rest"]
+    assert data["suffices"] == {"check_accelerometer": True, "check_gyroscope": True,
+                                "refresh_gyroscope_bias": True,
+                                "refresh_accelerometer_axes": ["x", "y", "z"]}
+    rc, out, _ = run(capsys, "check", "--moments-only", walk / "walk.mat")
+    assert rc == 0 and f"still moments   {moments['count']}, " in out
+    assert "check accel.    yes" in out and "refresh accel.  bias and scale of x, y, z" in out
+    rc, out, _ = run(capsys, "check", "--moments-only", walk / "walk.mat", "--acc-only")
+    assert rc == 0 and "check gyro" not in out and "rate at rest" not in out
+    rc = main(["synth", str(tmp_path / "s.mat"), "--activity", "walk", "--minutes", "0.6"])
+    capsys.readouterr()
+    rc, out, _ = run(capsys, "check", "--moments-only", tmp_path / "s.mat")
+    assert rc == 2 and "check accel.    no: 2 moment(s)" in out and "check gyro      yes" in out
+
+
+def test_moments_only_refusals(walk, capsys, tmp_path):
+    rc, _, err = run(capsys, "check", "--moments-only", walk / "walk.mat",
+                     walk / "walk.mat.calib.json")
+    assert rc == 2 and "the recording alone" in err
+    rc, _, err = run(capsys, "check", "--moments-only", walk / "walk.mat", "--gyro-limit", "1")
+    assert rc == 2 and "judge a calibration" in err
+    rc, _, err = run(capsys, "check", walk / "walk.mat.calib.json")
+    assert rc == 2 and "--moments-only RECORDING" in err
+    counts = tmp_path / "counts.csv"  # raw counts: no |g| without a calibration
+    counts.write_text("t,ax,ay,az\n" + "".join(f"{i / 100},{100 + i % 3},{-20 + i % 2},"
+                                               f"{16000 + i % 5}\n" for i in range(600)))
+    rc, _, err = run(capsys, "check", "--moments-only", counts, "--acc-unit", "counts",
+                     "--acc-only")
+    assert rc == 1 and err.startswith("imucal: error: counts.csv: accelerometer unit: ")
+    assert len(err.strip().splitlines()) == 1
