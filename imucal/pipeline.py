@@ -738,19 +738,21 @@ def calibrate_temperature(result: Result) -> Result:
         warnings = calibrated_beside(list(warnings), temp.instance, "each bias a polynomial "
                                      "in it (the temperature section)")
     return _judged_in_temperature(dataclasses.replace(result, temperature=tuple(out),
-                                                      warnings=warnings), models)
+                                                      warnings=warnings), models, block_t, legs)
 
 
 # What the verdict's figures are of once the accelerometer's bias is in temperature (§8).
 IN_TEMPERATURE = "accelerometer with its bias in temperature (method.md M16)"
 
 
-def _judged_in_temperature(result: Result, models: list[SensorModel]) -> Result:
+def _judged_in_temperature(result: Result, models: list[SensorModel], temps: np.ndarray,
+                           legs: np.ndarray) -> Result:
     """The run judged as apply uses it (method.md §8, §12): the accelerometer's figures those
     of its bias in temperature (each still block held out of M17), the constant fit's kept
     beside them in the verdict's figures; and M7 asked of what each temperature model leaves,
     where its span (10 deg C or more) lets it explain a drift. One segment (as
-    :func:`calibrate_temperature` leaves it); ``models`` the constant model of each block."""
+    :func:`calibrate_temperature` leaves it); ``models``, ``temps``, ``legs``: each block's
+    constant model, temperature and leg, as M17 was fitted to them."""
     fits = {f.sensor: f for f in result.temperature}
     acc, gyro = fits.get("accelerometer"), fits.get("gyroscope")
     seg, session, det = result.segments[0], result.session, result.detection
@@ -759,7 +761,7 @@ def _judged_in_temperature(result: Result, models: list[SensorModel]) -> Result:
     acc_cv, words, constant = seg.acc_cv, "the fit", {}
     if acc is not None and acc.model is not None and acc.used is not None:
         means, used_models = det.means[acc.used], [models[i] for i in acc.used]
-        acc, ratio = accel_figures(acc, means, used_models, g)
+        acc, ratio = accel_figures(acc, temps, det.means, models, g, legs)
         acc_cv = dataclasses.replace(seg.acc_cv, block_error_mg=acc.held_out_mg,
                                      in_sample_error_mg=acc.after_mg, expected_ratio=ratio)
         words = "the fit in temperature"

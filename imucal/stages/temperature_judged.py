@@ -17,20 +17,19 @@ from dataclasses import replace
 
 import numpy as np
 
-from imucal.models import SensorModel, acc_model, acc_theta
+from imucal.models import SensorModel, acc_theta
 from imucal.stages.drift import DriftTest, block_rates, f_test, lstsq, time_fraction
-from imucal.stages.temperature import BiasPolynomial, _norm_jacobian
+from imucal.stages.temperature import BiasPolynomial, _norm_jacobian, fit_accel_bias_polynomial
 
 
 def _system(fit: BiasPolynomial, means: np.ndarray, models: list[SensorModel], g: float
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
-    """M17 at the constant fit, as :func:`fit_accel_bias_polynomial` builds it: the blocks'
-    norm residuals ``r`` (n,), their Jacobian (n, 9), the temperatures on [-1, 1] about
-    ``fit.t0``, the half span, and the constant fit's parameters."""
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """M17 at the constant fit, as :func:`fit_accel_bias_polynomial` builds it, for the fit's
+    blocks (``means``, ``models``: theirs): the norm residuals ``r`` (n,), their Jacobian
+    (n, 9), and the temperatures on [-1, 1] about ``fit.t0``."""
     params = np.array([acc_theta(m) for m in models])
     r = np.array([np.linalg.norm(m.apply(x[None])[0]) for m, x in zip(models, means)]) - g
-    half = max(fit.span_c / 2, 1e-6)
-    return r, _norm_jacobian(means, params), (fit.temps - fit.t0) / half, half, params[0]
+    return r, _norm_jacobian(means, params), (fit.temps - fit.t0) / max(fit.span_c / 2, 1e-6)
 
 
 def _design(fit: BiasPolynomial, jac: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -41,40 +40,35 @@ def _design(fit: BiasPolynomial, jac: np.ndarray, x: np.ndarray) -> np.ndarray:
     return np.hstack([jac, *poly, *scale])
 
 
-def _model(fit: BiasPolynomial, sol: np.ndarray, params0: np.ndarray, half: float,
-           span: tuple[float, float]) -> BiasPolynomial:
-    """The model a solution ``sol`` of M17 stands for, held inside ``span``."""
-    p = fit.order
-    c = sol[9:9 + 3 * p].reshape(p, 3) / half ** np.arange(1, p + 1)[:, None]
-    corrected = acc_model(np.r_[params0[:6] + sol[:6], fit.b0])
-    slope = None if fit.scale_slope is None else sol[-3:] / half / corrected.K
-    return replace(fit, coefs=np.vstack([sol[6:9][None, :], c]), model=corrected,
-                   scale_slope=slope, span=span)
-
-
 def _norm_error_mg(a: np.ndarray, g: float) -> np.ndarray:
     return (np.linalg.norm(a, axis=1) / g - 1.0) * 1e3
 
 
-def accel_figures(fit: BiasPolynomial, means: np.ndarray, models: list[SensorModel],
-                  g: float) -> tuple[BiasPolynomial, float]:
+def accel_figures(fit: BiasPolynomial, temps: np.ndarray, means: np.ndarray,
+                  models: list[SensorModel], g: float, legs: np.ndarray | None
+                  ) -> tuple[BiasPolynomial, float]:
     """``fit`` with its still-norm errors (mg) in sample (``after_mg``) and held out
-    (``held_out_mg``), over its blocks ``fit.used`` (``means`` their raw means, ``models`` the
-    constant fit's model of each); and the held-out over in-sample ratio a well-posed fit of
-    this size shows anyway (``B / (B - q)``, q the unknowns), for the overfitting test."""
-    r, jac, x, half, params0 = _system(fit, means, models, g)
-    a = _design(fit, jac, x)
-    n, temps = len(r), fit.temps
-    held = np.empty(n)
-    for k in range(n):  # one small solve per block (n ~ 20-100), not per sample
+    (``held_out_mg``) over its blocks ``fit.used``; and the held-out over in-sample ratio a
+    well-posed fit of its size shows anyway (``B / (B - q)``, q its unknowns), for the
+    overfitting test. ``temps``, ``means``, ``models``, ``legs``: what ``fit`` was fitted to
+    (:func:`fit_accel_bias_polynomial`, every block of the run). Held out means the whole fit
+    made again without the block, its order and scale slope chosen by its own
+    cross-validation (a block never helps choose the model that predicts it), and evaluated at
+    the block's temperature through :meth:`BiasPolynomial.calibrated` (apply's equation),
+    which holds it inside the other blocks' span: never extrapolated."""
+    n = len(temps)
+    held = np.full(len(fit.used), np.nan)
+    for i, k in enumerate(fit.used):  # one small fit per block (20-100 of them, ~5 ms each)
         keep = np.arange(n) != k
-        sol = np.linalg.lstsq(a[keep], -r[keep], rcond=None)[0]
-        span = (float(temps[keep].min()), float(temps[keep].max()))
-        model = _model(fit, sol, params0, half, span)
-        held[k] = _norm_error_mg(model.calibrated(means[k:k + 1], temps[k:k + 1]), g)[0]
-    after = _norm_error_mg(fit.calibrated(means, temps), g)
+        other = fit_accel_bias_polynomial(temps[keep], means[keep],
+                                          [m for m, x in zip(models, keep) if x], g,
+                                          None if legs is None else legs[keep])
+        if other is not None:
+            held[i] = _norm_error_mg(other.calibrated(means[k:k + 1], temps[k:k + 1]), g)[0]
+    after = _norm_error_mg(fit.calibrated(means[fit.used], fit.temps), g)
+    q = 9 + 3 * fit.order + 3 * (fit.scale_slope is not None)
     return (replace(fit, after_mg=after, held_out_mg=held),
-            n / max(n - a.shape[1], 1e-9))
+            len(fit.used) / max(len(fit.used) - q, 1e-9))
 
 
 def _untracked(tau: np.ndarray, x: np.ndarray, order: int) -> float:
@@ -99,7 +93,7 @@ def accel_drift(fit: BiasPolynomial, means: np.ndarray, models: list[SensorModel
     times the block's time over the span), the F-test of the two. ``t_mid`` (n,) the blocks'
     mid times, ``mean_var`` (n, 3) the raw variance of each block's mean (its noise). None
     without 3 blocks to spare."""
-    r, jac, x, _, _ = _system(fit, means, models, g)
+    r, jac, x = _system(fit, means, models, g)
     a = _design(fit, jac, x)
     n = len(r)
     dof2 = n - a.shape[1] - 3
