@@ -762,7 +762,8 @@ def _judged_in_temperature(result: Result, models: list[SensorModel], temps: np.
     if acc is not None and acc.model is not None and acc.used is not None:
         means, used_models = det.means[acc.used], [models[i] for i in acc.used]
         acc, ratio = accel_figures(acc, temps, det.means, models, g, legs)
-        acc_cv = dataclasses.replace(seg.acc_cv, block_error_mg=acc.held_out_mg,
+        scored = np.isfinite(acc.held_out_mg)  # a ramp's end blocks are not (§12)
+        acc_cv = dataclasses.replace(seg.acc_cv, block_error_mg=acc.held_out_mg[scored],
                                      in_sample_error_mg=acc.after_mg, expected_ratio=ratio)
         words = "the fit in temperature"
         constant = {"acc_held_out_mg_constant": seg.acc_cv.rms_mg,

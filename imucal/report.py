@@ -128,14 +128,17 @@ def report(result: Result) -> Report:
                   verdict=_verdict(result), details=_details(result))
 
 
-def in_temperature(result: Result) -> tuple[float, float, int] | None:
+def in_temperature(result: Result) -> tuple[float, float, int, int] | None:
     """The accelerometer's static norm error (mg RMS) with its bias in temperature, in sample
-    and held out, and over how many still blocks (method.md §8, §12); None where the run has
-    no such model (the constant fit's figures are then the only ones)."""
+    and held out, over how many still blocks, and how many of them were scored held out (a
+    ramp's end blocks are not; method.md §8, §12); None where the run has no such model (the
+    constant fit's figures are then the only ones)."""
     for f in result.temperature:
         if f.sensor == "accelerometer" and f.held_out_mg is not None and f.after_mg is not None:
+            held = f.held_out_mg[np.isfinite(f.held_out_mg)]
             return (float(np.sqrt(np.mean(f.after_mg ** 2))),
-                    float(np.sqrt(np.mean(f.held_out_mg ** 2))), len(f.held_out_mg))
+                    float(np.sqrt(np.mean(held ** 2))) if len(held) else float("nan"),
+                    len(f.after_mg), len(held))
     return None
 
 

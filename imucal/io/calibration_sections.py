@@ -99,11 +99,13 @@ def _judged(result: Result) -> dict:
     q = result.quality
     return {"static_norm_rms_mg": {
         "in_sample": _f(heat[0]), "held_out": _f(heat[1]), "static_blocks": heat[2],
+        "held_out_blocks": heat[3],
         "constant": {"in_sample": _f(q.static_norm_rms_mg.after),
                      "held_out": _f(q.static_norm_cv_mg)},
         "note": "|a| against |g| on the still poses with the bias in temperature, as apply "
-                "calibrates; held out: each block predicted by M17 refitted without it, at its "
-                "temperature held inside the other blocks' span"}}
+                "calibrates; held out: each block predicted by the fit in temperature made "
+                "again without it (its order chosen again), the blocks outside the others' "
+                "span (a ramp's ends) not scored, as the order's cross-validation scores them"}}
 
 
 def triads_section(result: Result, result_to_dict: Callable[[Result], dict]) -> dict:

@@ -19,7 +19,12 @@ import numpy as np
 
 from imucal.models import SensorModel, acc_theta
 from imucal.stages.drift import DriftTest, block_rates, f_test, lstsq, time_fraction
-from imucal.stages.temperature import BiasPolynomial, _norm_jacobian, fit_accel_bias_polynomial
+from imucal.stages.temperature import (
+    BiasPolynomial,
+    _inside_others,
+    _norm_jacobian,
+    fit_accel_bias_polynomial,
+)
 
 
 def _system(fit: BiasPolynomial, means: np.ndarray, models: list[SensorModel], g: float
@@ -54,11 +59,16 @@ def accel_figures(fit: BiasPolynomial, temps: np.ndarray, means: np.ndarray,
     (:func:`fit_accel_bias_polynomial`, every block of the run). Held out means the whole fit
     made again without the block, its order and scale slope chosen by its own
     cross-validation (a block never helps choose the model that predicts it), and evaluated at
-    the block's temperature through :meth:`BiasPolynomial.calibrated` (apply's equation),
-    which holds it inside the other blocks' span: never extrapolated."""
+    the block's temperature through :meth:`BiasPolynomial.calibrated` (apply's equation).
+    As in the order's cross-validation, a block outside the other blocks' span (an end of a
+    ramp) is not scored (NaN): the fit without it would be extrapolated to it, which the model
+    never is (held at its end value, it would measure that clamp, not the model)."""
     n = len(temps)
     held = np.full(len(fit.used), np.nan)
+    scored = _inside_others(fit.temps)
     for i, k in enumerate(fit.used):  # one small fit per block (20-100 of them, ~5 ms each)
+        if not scored[i]:
+            continue
         keep = np.arange(n) != k
         other = fit_accel_bias_polynomial(temps[keep], means[keep],
                                           [m for m, x in zip(models, keep) if x], g,

@@ -65,7 +65,7 @@ def test_with_temperature_the_ramp_is_good_and_nothing_moved(ramp):
     assert acc["order"] == 1  # the truth's
     assert acc["static_norm_rms_mg"] | {"note": None} == {
         "in_sample": f["acc_in_sample_mg"], "held_out": f["acc_held_out_mg"],
-        "static_blocks": 24, "note": None,
+        "static_blocks": 24, "held_out_blocks": 22, "note": None,
         "constant": {"in_sample": c["quality"]["static_norm_rms_mg"]["after"],
                      "held_out": c["quality"]["static_norm_rms_mg"]["cross_validated"]}}
     # No drift warned: each bias moved with the temperature, which the model explains (said).
