@@ -738,21 +738,25 @@ def calibrate_temperature(result: Result) -> Result:
         warnings = calibrated_beside(list(warnings), temp.instance, "each bias a polynomial "
                                      "in it (the temperature section)")
     return _judged_in_temperature(dataclasses.replace(result, temperature=tuple(out),
-                                                      warnings=warnings), models, block_t, legs)
+                                                      warnings=warnings),
+                                  block_t, det.means, models, legs)
 
 
 # What the verdict's figures are of once the accelerometer's bias is in temperature (§8).
 IN_TEMPERATURE = "accelerometer with its bias in temperature (method.md M16)"
 
 
-def _judged_in_temperature(result: Result, models: list[SensorModel], temps: np.ndarray,
-                           legs: np.ndarray) -> Result:
+def _judged_in_temperature(result: Result, temps: np.ndarray, means: np.ndarray,
+                           models: list[SensorModel], legs: np.ndarray,
+                           drift: bool = True) -> Result:
     """The run judged as apply uses it (method.md §8, §12): the accelerometer's figures those
     of its bias in temperature (each still block held out of M17), the constant fit's kept
     beside them in the verdict's figures; and M7 asked of what each temperature model leaves,
     where its span (10 deg C or more) lets it explain a drift. One segment (as
-    :func:`calibrate_temperature` leaves it); ``models``, ``temps``, ``legs``: each block's
-    constant model, temperature and leg, as M17 was fitted to them."""
+    :func:`calibrate_temperature` leaves it); ``temps``, ``means``, ``models``, ``legs``: each
+    block's temperature, raw mean, constant model and leg, as M17 was fitted to them (the
+    run's blocks; with ``drift`` False, several sessions' pooled, whose times M7 cannot
+    compare: their drift warnings stay the first run's)."""
     fits = {f.sensor: f for f in result.temperature}
     acc, gyro = fits.get("accelerometer"), fits.get("gyroscope")
     seg, session, det = result.segments[0], result.session, result.detection
@@ -760,20 +764,20 @@ def _judged_in_temperature(result: Result, models: list[SensorModel], temps: np.
     t_mid = result.block_times.mean(axis=1)
     acc_cv, words, constant = seg.acc_cv, "the fit", {}
     if acc is not None and acc.model is not None and acc.used is not None:
-        means, used_models = det.means[acc.used], [models[i] for i in acc.used]
-        acc, ratio = accel_figures(acc, temps, det.means, models, g, legs)
+        acc, ratio = accel_figures(acc, temps, means, models, g, legs)
         scored = np.isfinite(acc.held_out_mg)  # a ramp's end blocks are not (§12)
         acc_cv = dataclasses.replace(seg.acc_cv, block_error_mg=acc.held_out_mg[scored],
                                      in_sample_error_mg=acc.after_mg, expected_ratio=ratio)
         words = "the fit in temperature"
         constant = {"acc_held_out_mg_constant": seg.acc_cv.rms_mg,
                     "acc_in_sample_mg_constant": seg.acc_cv.in_sample_rms_mg}
-        if acc.span_c >= MIN_SPAN_C:  # a shorter span explains no drift: M7 as it was
-            after = accel_drift(acc, means, used_models, g, t_mid[acc.used],
+        if drift and acc.span_c >= MIN_SPAN_C:  # a shorter span explains no drift (§8)
+            after = accel_drift(acc, means[acc.used], [models[i] for i in acc.used], g,
+                                t_mid[acc.used],
                                 block_mean_variance(session.acc, det.blocks[acc.used]))
             steady = accelerometer_drift(session.acc, det.blocks, det.means, t_mid, seg.acc)
             acc = _drift_judged(acc, warnings, "acc_bias_drift", steady, after)
-    if gyro is not None and seg.gyro is not None and gyro.used is not None \
+    if drift and gyro is not None and seg.gyro is not None and gyro.used is not None \
             and gyro.span_c >= MIN_SPAN_C:
         k = seg.gyro.model.K
         after = gyro_drift(gyro, session.gyro, session.t_gyro, result.block_times, k)
@@ -851,7 +855,11 @@ def calibrate_same_device(results: Sequence[Result]) -> Result:
         warnings = calibrated_beside(list(warnings), _temp_stream(first.session).instance,
                                      "each bias a polynomial in it, with the other sessions' "
                                      "(the temperature section)")
-    return dataclasses.replace(first, temperature=out, warnings=warnings)
+    result = dataclasses.replace(first, temperature=out, warnings=warnings)
+    if len(first.segments) > 1:  # apply keeps the constant fit's segments: judged as they are
+        return result
+    return _judged_in_temperature(result, block_t, np.concatenate(means), models,
+                                  np.concatenate(legs), drift=False)
 
 
 # --- the triads as one calibration to apply; a low-range and a high-range pair (M18) ------------

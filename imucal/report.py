@@ -110,7 +110,9 @@ def report(result: Result) -> Report:
                    "|a| against |g| on the still poses, RMS" if heat is None else
                    "constant bias: |a| against |g| on the still poses, RMS", q.static_norm_cv_mg),
         *(() if heat is None else (QualityRow(
-            "  in temperature (mg)", BeforeAfter(q.static_norm_rms_mg.before, heat[0]),
+            # "before" where its blocks are the run's (not several sessions' pooled)
+            "  in temperature (mg)", BeforeAfter(q.static_norm_rms_mg.before if heat[2] == len(
+                result.block_times) else None, heat[0]),
             "bias in temperature (M16), as apply calibrates: the figures the verdict judges",
             heat[1]),)),
         QualityRow("sample norm error (mg)", q.sample_norm_rms_mg,

@@ -158,3 +158,34 @@ def test_a_5_degC_span_keeps_the_drift_warning(tmp_path: Path):
         f"verdict         usable with caveats: {w['message'].removesuffix(f'; {ADVICE}')}",
         f"next step       {WARM_UP}"]
     assert not [n for n in s5["temperature"]["accelerometer"]["notes"] if "steady bias" in n]
+
+
+def test_several_sessions_of_one_device_are_judged_on_the_pooled_model(tmp_path: Path):
+    from imucal.synth import TemperatureProfile, make_session, random_acc_model, random_gyro_model
+
+    rng = np.random.default_rng(9)
+    acc, gyro = random_acc_model(rng), random_gyro_model(rng)
+    for i, temp in enumerate((15.0, 30.0, 45.0)):  # one device, each session at one temperature
+        session, _ = make_session(poses=12, seed=i, acc_rate=100.0, acc_truth=acc,
+                                  gyro_truth=gyro, temperature=TemperatureProfile(
+                                      start=temp, end=temp, acc=((4e-4, -3e-4, 2e-4),),
+                                      gyro=((1e-4, 0, 0),)))
+        table = {"t": session.t_acc, "temp": np.full(len(session.t_acc), temp)}
+        for k, ax in enumerate("xyz"):
+            table[f"a{ax}"], table[f"g{ax}"] = session.acc[:, k], session.gyro[:, k]
+        pl.DataFrame(table).write_csv(tmp_path / f"t{i}.csv")
+    out = _imucal("calibrate", "t0.csv", "--same-device", "t1.csv", "--same-device", "t2.csv",
+                  "--out", "dev.json", cwd=tmp_path)
+    d = json.loads((tmp_path / "dev.json").read_text())
+    v, sn = d["verdict"], d["temperature"]["accelerometer"]["static_norm_rms_mg"]
+    assert v["model"] == IN_TEMPERATURE
+    # Every session's still poses, each held out of the pooled fit (none at an end alone).
+    assert (sn["static_blocks"], sn["held_out_blocks"]) == (36, 36)
+    assert (sn["held_out"], sn["in_sample"]) == (v["figures"]["acc_held_out_mg"],
+                                                 v["figures"]["acc_in_sample_mg"])
+    assert v["figures"]["acc_held_out_mg"] < 1.0
+    # The constant fit's, of the first session alone, beside it; "before" not said of the pool.
+    assert v["figures"]["acc_held_out_mg_constant"] == \
+        d["quality"]["static_norm_rms_mg"]["cross_validated"]
+    (row,) = [ln for ln in out.splitlines() if ln.startswith("  in temperature (mg)")]
+    assert row.split()[3] == "n/a"
