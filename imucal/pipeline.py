@@ -35,7 +35,7 @@ from imucal.stages.combine import choose_low, clip_levels, found_clip
 from imucal.stages.detect import Detection
 from imucal.stages.detect_score import count_orientations
 from imucal.stages.detect_tuning import tune_detector
-from imucal.stages.drift import accelerometer_drift, gyroscope_drift
+from imucal.stages.drift import DriftTest, accelerometer_drift, gyroscope_drift
 from imucal.stages.group import block_mean_variance, group_blocks
 from imucal.stages.guide import ADVISED_HOLD_S, recording_guide
 from imucal.stages.gyro import calibrate_gyroscope
@@ -52,12 +52,15 @@ from imucal.stages.sanity import (
 )
 from imucal.stages.saturation import blocks_meeting, saturated_mask, saturated_runs
 from imucal.stages.temperature import (
+    MIN_SPAN_C,
+    BiasPolynomial,
     block_legs,
     block_temperatures,
     fit_accel_bias_polynomial,
     fit_bias_polynomial,
     hysteresis,
 )
+from imucal.stages.temperature_judged import accel_drift, accel_figures, explained_note, gyro_drift
 from imucal.stages.triads import (
     MIN_SHARED_BLOCKS,
     MIN_TURN_DEG,
@@ -734,7 +737,79 @@ def calibrate_temperature(result: Result) -> Result:
     if out:
         warnings = calibrated_beside(list(warnings), temp.instance, "each bias a polynomial "
                                      "in it (the temperature section)")
-    return dataclasses.replace(result, temperature=tuple(out), warnings=warnings)
+    return _judged_in_temperature(dataclasses.replace(result, temperature=tuple(out),
+                                                      warnings=warnings),
+                                  block_t, det.means, models, legs)
+
+
+# What the verdict's figures are of once the accelerometer's bias is in temperature (§8).
+IN_TEMPERATURE = "accelerometer with its bias in temperature (method.md M16)"
+
+
+def _judged_in_temperature(result: Result, temps: np.ndarray, means: np.ndarray,
+                           models: list[SensorModel], legs: np.ndarray,
+                           drift: bool = True) -> Result:
+    """The run judged as apply uses it (method.md §8, §12): the accelerometer's figures those
+    of its bias in temperature (each still block held out of M17), the constant fit's kept
+    beside them in the verdict's figures; and M7 asked of what each temperature model leaves,
+    where its span (10 deg C or more) lets it explain a drift. One segment (as
+    :func:`calibrate_temperature` leaves it); ``temps``, ``means``, ``models``, ``legs``: each
+    block's temperature, raw mean, constant model and leg, as M17 was fitted to them (the
+    run's blocks; with ``drift`` False, several sessions' pooled, whose times M7 cannot
+    compare: their drift warnings stay the first run's)."""
+    fits = {f.sensor: f for f in result.temperature}
+    acc, gyro = fits.get("accelerometer"), fits.get("gyroscope")
+    seg, session, det = result.segments[0], result.session, result.detection
+    g, warnings = result.calibration.g, list(result.warnings)
+    t_mid = result.block_times.mean(axis=1)
+    acc_cv, words, constant = seg.acc_cv, "the fit", {}
+    if acc is not None and acc.model is not None and acc.used is not None:
+        acc, ratio = accel_figures(acc, temps, means, models, g, legs)
+        scored = np.isfinite(acc.held_out_mg)  # a ramp's end blocks are not (§12)
+        acc_cv = dataclasses.replace(seg.acc_cv, block_error_mg=acc.held_out_mg[scored],
+                                     in_sample_error_mg=acc.after_mg, expected_ratio=ratio)
+        words = "the fit in temperature"
+        constant = {"acc_held_out_mg_constant": seg.acc_cv.rms_mg,
+                    "acc_in_sample_mg_constant": seg.acc_cv.in_sample_rms_mg}
+        if drift and acc.span_c >= MIN_SPAN_C:  # a shorter span explains no drift (§8)
+            after = accel_drift(acc, means[acc.used], [models[i] for i in acc.used], g,
+                                t_mid[acc.used],
+                                block_mean_variance(session.acc, det.blocks[acc.used]))
+            steady = accelerometer_drift(session.acc, det.blocks, det.means, t_mid, seg.acc)
+            acc = _drift_judged(acc, warnings, "acc_bias_drift", steady, after)
+    if drift and gyro is not None and seg.gyro is not None and gyro.used is not None \
+            and gyro.span_c >= MIN_SPAN_C:
+        k = seg.gyro.model.K
+        after = gyro_drift(gyro, session.gyro, session.t_gyro, result.block_times, k)
+        steady = gyroscope_drift(session.gyro, session.t_gyro, result.block_times, k)
+        gyro = _drift_judged(gyro, warnings, "gyro_bias_drift", steady, after)
+    drifts = [w for w in warnings if w.code in ("acc_bias_drift", "gyro_bias_drift")]
+    verdict = judge([SegmentFigures(None, acc_cv, seg.gyro, seg.orientations, words)],
+                    result.guide, drifts, model=IN_TEMPERATURE if constant else None)
+    verdict = dataclasses.replace(verdict, figures=verdict.figures | constant)
+    judged = {f.sensor: f for f in (acc, gyro) if f is not None}
+    return dataclasses.replace(result, warnings=warnings, verdict=verdict,
+                               temperature=tuple(judged.get(f.sensor, f)
+                                                 for f in result.temperature))
+
+
+def _drift_judged(fit: BiasPolynomial, warnings: list[RunWarning], code: str,
+                  steady: DriftTest | None, after: DriftTest | None) -> BiasPolynomial:
+    """M7's warning ``code`` in ``warnings`` (in place) replaced by the test of what the
+    temperature model leaves (``after``; a steady bias's test, ``steady``, where none could be
+    made), and ``fit`` with a note of what the temperature did to a drift found."""
+    if after is None:
+        return fit
+    i = next((j for j, w in enumerate(warnings) if w.code == code), None)
+    new = after.warning(None)
+    if i is not None:
+        del warnings[i]
+    if new is not None:
+        warnings.insert(len(warnings) if i is None else i, new)
+    if steady is not None and steady.drifting:
+        return dataclasses.replace(fit, notes=fit.notes + (explained_note(fit.sensor, steady,
+                                                                          after),))
+    return fit
 
 
 def calibrate_same_device(results: Sequence[Result]) -> Result:
@@ -780,7 +855,11 @@ def calibrate_same_device(results: Sequence[Result]) -> Result:
         warnings = calibrated_beside(list(warnings), _temp_stream(first.session).instance,
                                      "each bias a polynomial in it, with the other sessions' "
                                      "(the temperature section)")
-    return dataclasses.replace(first, temperature=out, warnings=warnings)
+    result = dataclasses.replace(first, temperature=out, warnings=warnings)
+    if len(first.segments) > 1:  # apply keeps the constant fit's segments: judged as they are
+        return result
+    return _judged_in_temperature(result, block_t, np.concatenate(means), models,
+                                  np.concatenate(legs), drift=False)
 
 
 # --- the triads as one calibration to apply; a low-range and a high-range pair (M18) ------------

@@ -108,21 +108,44 @@ def report(result: Result) -> Report:
     """The summary of ``result``: overview, quality before/after, each segment's parameters,
     and the warnings."""
     q = result.quality
+    heat = in_temperature(result)
     quality = [
         QualityRow("static norm error (mg)", q.static_norm_rms_mg,
-                   "|a| against |g| on the still poses, RMS", q.static_norm_cv_mg),
+                   "|a| against |g| on the still poses, RMS" if heat is None else
+                   "constant bias: |a| against |g| on the still poses, RMS", q.static_norm_cv_mg),
+        *(() if heat is None else (QualityRow(
+            # "before" where its blocks are the run's (not several sessions' pooled)
+            "  in temperature (mg)", BeforeAfter(q.static_norm_rms_mg.before if heat[2] == len(
+                result.block_times) else None, heat[0]),
+            "bias in temperature (M16), as apply calibrates: the figures the verdict judges",
+            heat[1]),)),
         QualityRow("sample norm error (mg)", q.sample_norm_rms_mg,
                    "the same on single samples: mostly the sensor's noise"),
     ]
     if q.gravity_angle_rms_deg is not None:
         quality.append(QualityRow("gravity angle (deg)", q.gravity_angle_rms_deg,
-                                  "gravity the gyroscope carries through each turn against "
+                                  ("" if heat is None else "constant bias: ")
+                                  + "gravity the gyroscope carries through each turn against "
                                   "the gravity measured after it, RMS", q.gravity_angle_cv_deg))
     return Report(title=Path(result.session.source).name, overview=_overview(result),
                   quality=tuple(quality), quality_notes=tuple(q.notes),
                   segments=tuple(_segment(result, seg) for seg in result.segments),
                   warnings=tuple(result.warnings), guide=_guide(result),
                   verdict=_verdict(result), details=_details(result))
+
+
+def in_temperature(result: Result) -> tuple[float, float, int, int] | None:
+    """The accelerometer's static norm error (mg RMS) with its bias in temperature, in sample
+    and held out, over how many still blocks, and how many of them were scored held out (a
+    ramp's end blocks are not; method.md §8, §12); None where the run has no such model (the
+    constant fit's figures are then the only ones)."""
+    for f in result.temperature:
+        if f.sensor == "accelerometer" and f.held_out_mg is not None and f.after_mg is not None:
+            held = f.held_out_mg[np.isfinite(f.held_out_mg)]
+            return (float(np.sqrt(np.mean(f.after_mg ** 2))),
+                    float(np.sqrt(np.mean(held ** 2))) if len(held) else float("nan"),
+                    len(f.after_mg), len(held))
+    return None
 
 
 def _overview(result: Result) -> tuple[Line, ...]:

@@ -57,11 +57,16 @@ def result_line(result: Result) -> str:
     fits did not see (method.md §5), then the in-sample ones. ``calibrate`` prints it above the
     files it wrote, ``imucal-view SESSION`` before the viewer opens."""
     from imucal.errors import plural
-    from imucal.report import fmt
+    from imucal.report import fmt, in_temperature
 
     q = result.quality
     parts = [f"accelerometer {fmt(q.static_norm_cv_mg, '.3g')} mg held out "
              f"({fmt(q.static_norm_rms_mg.after, '.3g')} in-sample)"]
+    heat = in_temperature(result)
+    if heat is not None:  # the figures the verdict judged first, the constant fit's beside
+        parts = [f"accelerometer {fmt(heat[1], '.3g')} mg held out ({fmt(heat[0], '.3g')} "
+                 f"in-sample) with its bias in temperature, {fmt(q.static_norm_cv_mg, '.3g')} "
+                 f"({fmt(q.static_norm_rms_mg.after, '.3g')}) constant"]
     if q.gravity_angle_rms_deg is not None:
         parts.append(f"gyroscope {fmt(q.gravity_angle_cv_deg, '.3g')} deg held out "
                      f"({fmt(q.gravity_angle_rms_deg.after, '.3g')} in-sample)")

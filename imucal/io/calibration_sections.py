@@ -89,8 +89,29 @@ def temperature_section(result: Result) -> dict:
             "scale_slope_per_degC": None if f.scale_slope is None else _fl(f.scale_slope),
             "notes": list(f.notes)} | (
             # M2's T and K fitted beside the polynomial (M17): the model b(T) belongs to
-            {"T": _fl(f.model.T), "K": _fl(f.model.K)} if f.model is not None else {})
+            {"T": _fl(f.model.T), "K": _fl(f.model.K)} if f.model is not None else {}) | (
+            _judged(result) if f.sensor == "accelerometer" else {})
     return out
+
+
+def _judged(result: Result) -> dict:
+    """The accelerometer's static norm error with its bias in temperature, the figures the
+    verdict judged, beside the constant fit's (method.md §8); {} where not computed."""
+    from imucal.report import in_temperature
+
+    heat = in_temperature(result)
+    if heat is None:
+        return {}
+    q = result.quality
+    return {"static_norm_rms_mg": {
+        "in_sample": _f(heat[0]), "held_out": _f(heat[1]), "static_blocks": heat[2],
+        "held_out_blocks": heat[3],
+        "constant": {"in_sample": _f(q.static_norm_rms_mg.after),
+                     "held_out": _f(q.static_norm_cv_mg)},
+        "note": "|a| against |g| on the still poses with the bias in temperature, as apply "
+                "calibrates; held out: each block predicted by the fit in temperature made "
+                "again without it (its order chosen again), the blocks outside the others' "
+                "span (a ramp's ends) not scored, as the order's cross-validation scores them"}}
 
 
 def triads_section(result: Result, result_to_dict: Callable[[Result], dict]) -> dict:

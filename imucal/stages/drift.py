@@ -41,6 +41,11 @@ GYRO_MIN_DPS = 0.05
 # What a drift warning ends with (the verdict gives it as its next step instead)
 ADVICE = ("one calibration is fitted to a sensor that changed: let it warm up before recording, "
           "or record a shorter session")
+# What a drift left after the temperature model ends with (method.md §8, §12): the temperature
+# explains the rest, so warming up is not the whole answer.
+ADVICE_IN_TEMPERATURE = ("one calibration in temperature is fitted to a sensor that changed in a "
+                         "way its temperature does not explain: check that the temperature is "
+                         "the sensor's own, or record a shorter session")
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,9 @@ class DriftTest:
     p_value: float
     noise_ratio: float  # the blocks' scatter about a steady bias over what their noise predicts
     blocks: int
+    # The model the change is beyond: None, a steady bias (M7); else its words, e.g. "the bias
+    # of order 2 in temperature" (the residual after M16, method.md §8).
+    beyond: str | None = None
 
     @property
     def size(self) -> float:
@@ -70,6 +78,14 @@ class DriftTest:
             return None
         unit = "mg" if self.sensor == "accelerometer" else "deg/s"
         code = "acc_bias_drift" if self.sensor == "accelerometer" else "gyro_bias_drift"
+        if self.beyond is not None:
+            return RunWarning(code, (
+                f"the {self.sensor}'s bias moved during the recording beyond what its "
+                f"temperature explains: about {self.size:.2g} {unit} over the recording that "
+                f"{self.beyond} does not follow (a bias changing linearly in time as well "
+                f"explains the {self.blocks} still blocks better: F {self.f:.3g}, p "
+                f"{self.p_value:.2g}; they scatter {self.noise_ratio:.3g} times beyond their "
+                f"own noise about {self.beyond}); {ADVICE_IN_TEMPERATURE}"), segment)
         return RunWarning(code, (
             f"the {self.sensor}'s bias moved during the recording: about {self.size:.2g} "
             f"{unit} from the first still pose to the last (a bias changing linearly in time "
@@ -78,7 +94,7 @@ class DriftTest:
             f"beyond their own noise about a steady bias); {ADVICE}"), segment)
 
 
-def _f_test(rss1: float, rss2: float, dof2: int) -> tuple[float, float]:
+def f_test(rss1: float, rss2: float, dof2: int) -> tuple[float, float]:
     # imported here, where a test runs: scipy.special costs ~0.1 s CPU to import
     from scipy.special import fdtrc
 
@@ -88,7 +104,7 @@ def _f_test(rss1: float, rss2: float, dof2: int) -> tuple[float, float]:
     return float(f), float(fdtrc(3, dof2, f))
 
 
-def _tau(t_mid: np.ndarray) -> np.ndarray:
+def time_fraction(t_mid: np.ndarray) -> np.ndarray:
     span = float(t_mid.max() - t_mid.min())
     return (t_mid - t_mid.mean()) / (span if span > 0 else 1.0)
 
@@ -108,10 +124,10 @@ def accelerometer_drift(acc: np.ndarray, blocks: np.ndarray, means: np.ndarray,
     w, scale = block_weights(m, var, theta)
     r = w * residuals(theta, m)
     J = w[:, None] * jacobian(theta, m)
-    K = J[:, 6:9] * _tau(t_mid)[:, None]  # d r / d c: the bias's columns times the time
+    K = J[:, 6:9] * time_fraction(t_mid)[:, None]  # d r / d c: the bias's columns times the time
     rss1 = _rss(J, r)
-    x, rss2 = _lstsq(np.hstack([J, K]), r)
-    f, p = _f_test(rss1, rss2, B - 12)
+    x, rss2 = lstsq(np.hstack([J, K]), r)
+    f, p = f_test(rss1, rss2, B - 12)
     # x is the step from the fit, c its last three (nominal frame, |g| = 1): the change in mg
     return DriftTest("accelerometer", x[9:12] * 1e3, f, (3, B - 12), p,
                      float(scale * rss1 / max(B - 9, 1)), B)
@@ -123,23 +139,11 @@ def gyroscope_drift(w_raw, t, block_times: np.ndarray, rad_s_per_raw: np.ndarray
     the raw unit (the fitted scale for counts, 1 for rad/s). ``w_raw`` and ``t`` are read by
     slices of rows, a block at a time."""
     times = np.asarray(block_times, float).reshape(-1, 2)
-    lo = sorted_position(t, times[:, 0], side="left")
-    hi = np.maximum(sorted_position(t, times[:, 1], side="right"), lo)
-    ok = (hi - lo) >= 3
-    lo, hi = lo[ok], hi[ok]
-    B = len(lo)
+    ok, m, sw = block_rates(w_raw, t, times)
+    B = len(m)
     if B < 4:
         return None
-    m = np.empty((B, 3))
-    v = np.empty((B, 3))
-    for k, (a, b) in enumerate(zip(lo, hi)):  # one step per block, numpy within
-        x = np.asarray(w_raw[a:b], float)
-        m[k] = x.mean(axis=0)
-        v[k] = x.var(axis=0, ddof=1) / len(x)
-    med = np.median(v, axis=0)
-    v = np.maximum(v, 0.01 * np.where(med > 0, med, 1.0))  # no block outweighs the rest
-    sw = 1.0 / np.sqrt(v)  # (B, 3) per axis
-    tau = _tau(times[ok].mean(axis=1))
+    tau = time_fraction(times[ok].mean(axis=1))
     rss1 = rss2 = 0.0
     change = np.empty(3)
     for i in range(3):
@@ -147,20 +151,40 @@ def gyroscope_drift(w_raw, t, block_times: np.ndarray, rad_s_per_raw: np.ndarray
         A1 = sw[:, i:i + 1]
         A2 = np.column_stack([sw[:, i], sw[:, i] * tau])
         rss1 += _rss(A1, y)
-        coef, r2 = _lstsq(A2, y)
+        coef, r2 = lstsq(A2, y)
         rss2 += r2
         change[i] = coef[1]
     dof2 = 3 * B - 6
-    f, p = _f_test(rss1, rss2, dof2)
+    f, p = f_test(rss1, rss2, dof2)
     dps = np.degrees(change * np.asarray(rad_s_per_raw, float))
     return DriftTest("gyroscope", dps, f, (3, dof2), p, float(rss1 / (3 * B - 3)), B)
 
 
-def _lstsq(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+def block_rates(w_raw, t, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The still blocks ``times`` (B, 2) of 3 samples or more (``ok``, (B,)): each one's mean
+    rate (n, 3) and the inverse standard error of that mean per axis (n, 3), floored so that no
+    block outweighs the rest. ``w_raw`` and ``t`` are read by slices of rows."""
+    lo = sorted_position(t, times[:, 0], side="left")
+    hi = np.maximum(sorted_position(t, times[:, 1], side="right"), lo)
+    ok = (hi - lo) >= 3
+    lo, hi = lo[ok], hi[ok]
+    m = np.empty((len(lo), 3))
+    v = np.empty((len(lo), 3))
+    for k, (a, b) in enumerate(zip(lo, hi)):  # one step per block, numpy within
+        x = np.asarray(w_raw[a:b], float)
+        m[k] = x.mean(axis=0)
+        v[k] = x.var(axis=0, ddof=1) / len(x)
+    if len(m):
+        med = np.median(v, axis=0)
+        v = np.maximum(v, 0.01 * np.where(med > 0, med, 1.0))  # no block outweighs the rest
+    return ok, m, 1.0 / np.sqrt(v)
+
+
+def lstsq(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     x = np.linalg.lstsq(A, y, rcond=None)[0]
     res = y - A @ x
     return x, float(res @ res)
 
 
 def _rss(A: np.ndarray, y: np.ndarray) -> float:
-    return _lstsq(A, y)[1]
+    return lstsq(A, y)[1]

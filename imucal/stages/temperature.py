@@ -77,6 +77,11 @@ class BiasPolynomial:
     # (n,) the accelerometer's still-norm error |u_k| / |g| - 1 of each of those blocks with the
     # constant-bias fit (mg): what the polynomial was fitted to explain (M17's r_k).
     before_mg: np.ndarray | None = None
+    # (n,) the same with this model, as apply uses it (M16 with M2, method.md §8): in-sample,
+    # and each block predicted by the model fitted without it (the figures the verdict
+    # judges; imucal.stages.temperature_judged). None: not computed (the gyroscope's).
+    after_mg: np.ndarray | None = None
+    held_out_mg: np.ndarray | None = None
 
     def points(self) -> np.ndarray | None:
         """(n, 3) the gyroscope's bias measured in each still block (raw unit): the data points

@@ -38,6 +38,7 @@ import numpy as np
 
 from imucal.stages.accel_cv import AccCrossValidation, axis_words
 from imucal.stages.drift import ADVICE as DRIFT_ADVICE
+from imucal.stages.drift import ADVICE_IN_TEMPERATURE
 from imucal.stages.guide import MIN_TILT_DEG, ORIENTATIONS_NEEDED, Guide
 from imucal.stages.gyro import OVERFIT_RATIO as GYRO_OVERFIT_RATIO
 from imucal.stages.gyro import GyroFit
@@ -59,6 +60,13 @@ ACC_POOR_MG = 10.0
 # an uncalibrated gyroscope within its datasheet (1-3 % of a 90-deg turn).
 GYRO_CAVEAT_DEG = 1.0
 GYRO_POOR_DEG = 3.0
+
+# A drift's next step, by the advice its warning ends with (imucal.stages.drift): a steady
+# bias that moved, or one the temperature model does not explain (method.md §8, §12).
+DRIFT_NEXT = {DRIFT_ADVICE: "let the sensor warm up (run it 10-15 minutes) before recording, "
+                            "and keep the session short",
+              ADVICE_IN_TEMPERATURE: "check that the temperature stream is the sensor's own, "
+                                     "and keep the session short"}
 
 
 @dataclass(frozen=True)
@@ -86,6 +94,9 @@ class Verdict:
     caveats: tuple[Finding, ...] = ()  # every finding but the deciding one, worst first
     figures: dict[str, float | None] = field(default_factory=dict)  # what was judged
     spec: dict | None = None  # a maker's limits checked (with_spec): pass, broken, limits
+    # The model the figures are of, where it is not the constant fit: "bias in temperature"
+    # (method.md §8, §12: apply calibrates with it, so the verdict judges it).
+    model: str | None = None
 
     @property
     def usable(self) -> bool:
@@ -108,7 +119,8 @@ class Verdict:
                                                    "not_usable": ACC_POOR_MG},
                                "gravity_held_out_deg": {"caveats": GYRO_CAVEAT_DEG,
                                                         "not_usable": GYRO_POOR_DEG}}} | (
-            {} if self.spec is None else {"spec": self.spec})
+            {} if self.spec is None else {"spec": self.spec}) | (
+            {} if self.model is None else {"model": self.model})
 
 
 @dataclass(frozen=True)
@@ -119,32 +131,40 @@ class SegmentFigures:
     acc_cv: AccCrossValidation
     gyro: GyroFit | None
     orientations: int
+    # What the accelerometer's figures are of, in the verdict's words: the constant fit, or
+    # "the fit in temperature" (its bias in temperature, method.md §8, §12).
+    acc_fit: str = "the fit"
 
 
 def judge(segments: Sequence[SegmentFigures], guide: Guide | None,
-          drifts: Sequence[RunWarning] = ()) -> Verdict:
+          drifts: Sequence[RunWarning] = (), model: str | None = None) -> Verdict:
     """The verdict of a run: every finding, the worst decides (ties: the first found, in the
     order accelerometer held out, gyroscope held out, undetermined parameters, poses, drifts,
     turns). ``drifts`` are the warnings of a bias that moved within a segment
     (:mod:`imucal.stages.drift`): caveats, since one calibration was fitted to a sensor that
-    changed, and the held-out figures average over the change instead of showing it."""
+    changed, and the held-out figures average over the change instead of showing it.
+    ``model`` names the model the segments' figures are of where it is not the constant fit
+    (the bias in temperature, method.md §8)."""
     findings: list[Finding] = []
     figures: dict[str, float | None] = {}
     for seg in segments:
         findings += _accelerometer(seg, guide, figures)
         if seg.gyro is not None:
             findings += _gyroscope(seg, guide, figures)
-    findings += [Finding(w.code, CAVEATS, w.text.removesuffix(f"; {DRIFT_ADVICE}"),
-                         "let the sensor warm up (run it 10-15 minutes) before recording, "
-                         "and keep the session short") for w in drifts]
+    for w in drifts:
+        advice = next((a for a in DRIFT_NEXT if w.text.endswith(f"; {a}")), DRIFT_ADVICE)
+        findings.append(Finding(w.code, CAVEATS, w.text.removesuffix(f"; {advice}"),
+                                DRIFT_NEXT[advice]))
     if guide is not None:
         findings += _recording(guide)
     if not findings:
-        return Verdict(GOOD, _good_reason(figures), "none: the calibration is ready to use",
-                       GOOD, (), figures)
+        words = segments[0].acc_fit if segments else "the fit"
+        return Verdict(GOOD, _good_reason(figures, words), "none: the calibration is ready to use",
+                       GOOD, (), figures, model=model)
     ranked = sorted(findings, key=lambda f: -LEVELS.index(f.level))  # stable: order kept
     top = ranked[0]
-    return Verdict(top.level, top.reason, top.next_step, top.code, tuple(ranked[1:]), figures)
+    return Verdict(top.level, top.reason, top.next_step, top.code, tuple(ranked[1:]), figures,
+                   model=model)
 
 
 def with_spec(verdict: Verdict, check: dict, source: str) -> Verdict:
@@ -173,7 +193,7 @@ def with_spec(verdict: Verdict, check: dict, source: str) -> Verdict:
                    caveats=(own, *verdict.caveats))
 
 
-def _good_reason(figures: dict[str, float | None]) -> str:
+def _good_reason(figures: dict[str, float | None], acc_fit: str = "the fit") -> str:
     """The held-out figures that passed: the worst segment's where there are several."""
     def worst(name: str) -> float | None:
         found = [v for k, v in figures.items()
@@ -182,7 +202,7 @@ def _good_reason(figures: dict[str, float | None]) -> str:
 
     acc, gyro = worst("acc_held_out_mg"), worst("gravity_held_out_deg")
     # The same words as a finding's, with the figures that passed (RMS over the poses/turns).
-    parts = ([f"still poses the fit did not see are off by {acc:.2g} mg"] if acc is not None
+    parts = ([f"still poses {acc_fit} did not see are off by {acc:.2g} mg"] if acc is not None
              else [])
     if gyro is not None:
         parts.append(f"turns it did not see end {gyro:.2g} deg off the measured gravity")
@@ -237,7 +257,7 @@ def _accelerometer(seg: SegmentFigures, guide: Guide | None,
     if cv.undetermined:
         why += (" leave " if why else ": the poses leave ") + (
             f"{', '.join(cv.undetermined)} undetermined")
-    said = (f"{'overfitted: ' if cv.overfitted else ''}still poses the fit did not see are "
+    said = (f"{'overfitted: ' if cv.overfitted else ''}still poses {seg.acc_fit} did not see are "
             f"off by {held:.3g} mg, against {ins:.3g} mg on those it saw{why}")
     if held > ACC_POOR_MG:
         out.append(Finding("acc_held_out", NOT_USABLE, where + said, poses))
