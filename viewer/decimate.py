@@ -49,8 +49,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imucal.numerics.windows import runs_of_true
-
 # A plot is ~1600 pixels wide at most: 10 000 min/max buckets leave ~6 per pixel column, so
 # zooming in 6x still shows every extreme before the envelope's steps show.
 SCREEN_ROWS = 20_000
@@ -80,25 +78,6 @@ def for_display(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return envelope(t, x, SCREEN_ROWS)
 
 
-def magnitudes_for_display(t: np.ndarray, v: np.ndarray, still: np.ndarray, keep_still: bool
-                           ) -> tuple[np.ndarray, np.ndarray, Decimation]:
-    """Magnitudes as logged: with ``keep_still`` the still samples as they are while there are
-    at most ``STILL_ROWS`` of them (else an envelope of about that many rows), without it an
-    envelope of about ``SCREEN_ROWS`` rows there too (the gyroscope); the samples between the
-    blocks an envelope of about ``SCREEN_ROWS`` rows. No bucket crosses a block's edge.
-
-    The whole signal at once; :mod:`viewer.stream` makes the same rows a chunk at a time."""
-    from .stream import EnvelopeStream
-
-    cut = magnitude_cut(runs_of_true(np.asarray(still, bool)), len(t), keep_still)
-    d = cut.decimation
-    if d.still_bucket == 1 and d.moving_bucket == 1:
-        return t, v, Decimation(len(t), len(t), 1, 1)
-    stream = EnvelopeStream(t, cut)
-    stream.feed(v)
-    return stream.rows()
-
-
 @dataclass(frozen=True)
 class Cut:
     """How a signal of ``samples`` rows is cut into buckets: ``runs`` ``[start, end)`` that
@@ -119,9 +98,10 @@ def axes_cut(n: int) -> Cut:
 
 
 def magnitude_cut(still_runs: np.ndarray, n: int, keep_still: bool) -> Cut:
-    """A magnitude's cut (:func:`magnitudes_for_display`): ``still_runs`` the still samples'
-    ``[start, end)`` ranges, in any order, overlapping or touching (they are merged, as a mask
-    of them would be: :func:`union_runs`); the gaps between them are the moving runs."""
+    """A magnitude's cut (:func:`viewer.stream.magnitudes_for_display`): ``still_runs`` the
+    still samples' ``[start, end)`` ranges, in any order, overlapping or touching (they are
+    merged, as a mask of them would be: :func:`union_runs`); the gaps between them are the
+    moving runs."""
     still = union_runs(still_runs, n)
     moving = gaps(still, n)
     still_rows = STILL_ROWS if keep_still else SCREEN_ROWS

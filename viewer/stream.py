@@ -5,14 +5,18 @@ alone are 1 GB, and were made whole only to be cut into 20 000 rows).
 The rows are the same as the whole signal's, to the bit: a bucket is made only once all its
 samples are in (the samples fed past the last complete bucket wait for the next chunk), and it
 is made by the same :func:`~viewer.decimate.run_envelope` from the same samples. Only where
-the chunks end differs, and no bucket sees it.
+the chunks end differs, and no bucket sees it. :func:`magnitudes_for_display` is the whole
+signal fed at once. This module builds on :mod:`viewer.decimate` (the cuts and the envelope),
+never the other way round.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .decimate import Cut, Decimation, run_envelope
+from imucal.numerics.windows import runs_of_true
+
+from .decimate import Cut, Decimation, magnitude_cut, run_envelope
 
 
 class EnvelopeStream:
@@ -63,7 +67,7 @@ class EnvelopeStream:
     def _envelope(self, a: int, b: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows of samples ``[a, b)`` (``x``), both ends a bucket's edge: the runs clipped to
         them keep their buckets. Runs of each bucket size together (one vectorised envelope),
-        then in time order, as :func:`~viewer.decimate.magnitudes_for_display` orders them."""
+        then in time order, as :func:`magnitudes_for_display` orders them."""
         runs, sizes = self.cut.runs, self.cut.size
         r0 = int(np.searchsorted(runs[:, 1], a, side="right"))
         r1 = int(np.searchsorted(runs[:, 0], b, side="left"))
@@ -77,3 +81,21 @@ class EnvelopeStream:
         tt = np.concatenate([p[0] for p in parts])
         order = np.argsort(tt, kind="stable")  # the times are strictly increasing: run order
         return tt[order], np.concatenate([p[1] for p in parts])[order]
+
+
+def magnitudes_for_display(t: np.ndarray, v: np.ndarray, still: np.ndarray, keep_still: bool
+                           ) -> tuple[np.ndarray, np.ndarray, Decimation]:
+    """Magnitudes as logged: with ``keep_still`` the still samples as they are while there are
+    at most ``STILL_ROWS`` of them (else an envelope of about that many rows), without it an
+    envelope of about ``SCREEN_ROWS`` rows there too (the gyroscope); the samples between the
+    blocks an envelope of about ``SCREEN_ROWS`` rows (:mod:`viewer.decimate` says why). No
+    bucket crosses a block's edge.
+
+    The whole signal at once; :class:`EnvelopeStream` makes the same rows a chunk at a time."""
+    cut = magnitude_cut(runs_of_true(np.asarray(still, bool)), len(t), keep_still)
+    d = cut.decimation
+    if d.still_bucket == 1 and d.moving_bucket == 1:
+        return t, v, Decimation(len(t), len(t), 1, 1)
+    stream = EnvelopeStream(t, cut)
+    stream.feed(v)
+    return stream.rows()

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from urllib.parse import parse_qs, urlsplit
 
-from imucal.capture.sources import Source
+from imucal.capture.byte_source import Source
 from imucal.errors import ImucalError
 
 _AXES = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag")

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal.capture.byte_source import Source
 from imucal.capture.detector import MIN_HOLD_S, DetectorState, StillDetector, guide_line
 from imucal.capture.lines import Batch, LineParser
 from imucal.capture.running import Retained, fit_retained, rate_per_unit, retained
-from imucal.capture.sources import Source
 from imucal.capture.stop import Progress, Targets, progress, running_progress
 from imucal.capture.writer import SESSION_NAME, SessionWriter
 from imucal.errors import ImucalError, plural

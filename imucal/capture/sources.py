@@ -2,51 +2,22 @@
 ``udp://[HOST]:PORT`` (listen), ``serial:/dev/ttyX?baud=N`` (pyserial, imported only then),
 ``mavlink:...`` (pymavlink, :mod:`imucal.capture.mavlink`).
 
-Every source is read the same way: :meth:`Source.read` waits at most ``timeout`` seconds and
-returns the bytes that came (``b""`` when none did), or None once the stream has ended (end of
-file, the peer closed, the cable pulled: an OS error on read ends the stream, it does not lose
-what was already written).
+Every source is read the same way (:class:`imucal.capture.byte_source.Source`, which each one
+here builds on): :meth:`~imucal.capture.byte_source.Source.read` waits at most ``timeout``
+seconds and returns the bytes that came (``b""`` when none did), or None once the stream has
+ended. :func:`open_source` opens the one a SOURCE argument names.
 """
 
 from __future__ import annotations
 
-import os
-import select
 import socket
 import time
 from urllib.parse import parse_qs, urlsplit
 
+from imucal.capture.byte_source import CHUNK, Source
 from imucal.errors import ImucalError
 
-CHUNK = 1 << 16  # bytes read at once: 64 KB holds ~0.6 s of 1 kHz lines of seven numbers
 UDP_BUFFER = 1 << 22  # the kernel's receive buffer asked for: a pause loses no datagram
-
-
-class Source:
-    """A stream of bytes read with a timeout; ``describe`` names it in messages."""
-
-    describe = "the source"
-    hint = "the format and the columns"  # what to check when nothing valid arrives
-
-    def fileno(self) -> int:
-        raise NotImplementedError
-
-    def _read_ready(self) -> bytes:
-        """Bytes from a descriptor select() found ready; b"" means the stream ended."""
-        return os.read(self.fileno(), CHUNK)
-
-    def read(self, timeout: float) -> bytes | None:
-        try:
-            ready, _, _ = select.select([self.fileno()], [], [], max(timeout, 0.0))
-            if not ready:
-                return b""
-            data = self._read_ready()
-        except (OSError, ValueError):  # a pulled cable, a reset connection, a closed port
-            return None
-        return data if data else None
-
-    def close(self) -> None:
-        pass
 
 
 class FdSource(Source):

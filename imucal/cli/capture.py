@@ -12,7 +12,8 @@ from typing import Annotated, Any
 
 import typer
 
-from imucal.cli.commands import app, calibrate
+from imucal.cli.app import app
+from imucal.cli.commands import calibrate
 from imucal.cli.options import (
     INPUT_OPTIONS,
     SETTING_OPTIONS,

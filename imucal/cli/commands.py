@@ -8,6 +8,7 @@ from typing import Annotated, Any
 
 import typer
 
+from imucal.cli.app import app
 from imucal.cli.options import (
     ACC_UNITS,
     APPLY_INPUT_OPTIONS,
@@ -44,19 +45,6 @@ from imucal.cli.outputs import (
 )
 from imucal.cli.summary import print_summary
 from imucal.errors import ImucalError
-
-app = typer.Typer(
-    name="imucal",
-    help="Calibrate an IMU's accelerometer and gyroscope from an ordinary recording "
-         "(still poses with turns between them).",
-    add_completion=True,  # --install-completion, --show-completion (typer's)
-    no_args_is_help=True,
-    rich_markup_mode=None,
-    pretty_exceptions_enable=False,
-    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
-)
-
-
 
 # --- commands ----------------------------------------------------------------------------------
 
@@ -477,7 +465,7 @@ def synth(
 ) -> None:
     """Write a synthetic session with known parameters, and its truth as JSON."""
     if activity is not None:
-        from imucal.cli.inuse import synth_everyday
+        from imucal.cli.synth_everyday import synth_everyday
 
         synth_everyday(out, truth, activity, minutes=minutes, seed=seed, acc_rate=acc_rate,
                        acc_noise=acc_noise, gyro_noise=gyro_noise,
@@ -614,24 +602,3 @@ def view(
               verbose=verbose, load_options=load_options or None,
               on_result=lambda result: print(result_line(result), flush=True), **overrides)
     return int(rc or 0)
-
-
-def print_version(ctx: typer.Context, value: bool) -> None:
-    """``--version``: the program's name and :data:`imucal.__version__` (the package's)."""
-    if value and not ctx.resilient_parsing:
-        import imucal
-
-        print(f"{ctx.find_root().info_name or 'imucal'} {imucal.__version__}")
-        raise typer.Exit()
-
-
-@app.callback()
-def _root(
-    version: Annotated[bool, typer.Option("--version", callback=print_version, is_eager=True,
-                                          help="Show the version and exit.")] = False,
-) -> None:
-    """Calibrate an IMU's accelerometer and gyroscope from an ordinary recording.
-
-    Exit codes: 0 success, 1 a problem with the input, files or settings, 2 a usage error,
-    3 an internal error, 130 interrupted.
-    """

@@ -16,7 +16,7 @@ from typing import Annotated, Any
 
 import typer
 
-from imucal.cli.commands import app
+from imucal.cli.app import app
 from imucal.cli.options import (
     INPUT_OPTIONS,
     SETTING_OPTIONS,

@@ -20,11 +20,14 @@ import sys
 
 import typer
 
-from imucal.cli import capture as _capture  # noqa: F401  (registers capture on app)
+# Each command module registers its commands on app as it is imported; --help lists them in
+# that order: commands.py's first (capture.py imports it for calibrate), then the others'.
+from imucal.cli import capture as _capture  # noqa: F401  (registers capture and replay on app)
+from imucal.cli import commands as _commands  # noqa: F401  (calibrate, apply, synth, view)
 from imucal.cli import fleet as _fleet  # noqa: F401  (registers batch and store on app)
 from imucal.cli import inuse as _inuse  # noqa: F401  (registers check and refresh on app)
 from imucal.cli import tools  # noqa: F401  (registers export and noise on app)
-from imucal.cli.commands import app
+from imucal.cli.app import app
 from imucal.errors import ImucalError
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 130

@@ -175,6 +175,19 @@ def _columns(value: str | None) -> str | None:
     return value
 
 
+def parse_triple(text: str | None, option: str) -> tuple[float, float, float]:
+    """``X,Y,Z`` -> three numbers (each below 1e6 in size); no value is (0, 0, 0)."""
+    if text is None:
+        return (0.0, 0.0, 0.0)
+    try:
+        x = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        x = ()
+    if len(x) != 3 or not all(abs(v) < 1e6 for v in x):
+        raise usage_error(f"expected three numbers X,Y,Z, got {text!r}", f"'{option}'")
+    return x  # type: ignore[return-value]
+
+
 # --- shared options ----------------------------------------------------------------------------
 
 _IN = "Input"

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from imucal.cli.options import usage_error
+from imucal.cli.options import parse_triple, usage_error
 
 # The second IMU's own drift with heat (g, rad/s per deg C^j about the ramp's middle): order 2
 # as the first's default, other coefficients, so each triad's fit is its own (method.md §12).
@@ -55,7 +55,6 @@ def triad_kwargs(*, csv: bool, counts: bool, acc_range: float | None, shake: flo
     if temperature is not None:
         import math
 
-        from imucal.cli.inuse import _triple
         from imucal.synth import TemperatureProfile
 
         start, end = temperature
@@ -66,16 +65,16 @@ def triad_kwargs(*, csv: bool, counts: bool, acc_range: float | None, shake: flo
         kw: dict[str, Any] = {"start": start, "end": end, "steps": temp_steps,
                               "ref": (start + end) / 2}
         if temp_acc_bias is not None:  # mg per deg C -> g per deg C, first order
-            kw["acc"] = (tuple(v * 1e-3 for v in _triple(temp_acc_bias, "--temp-acc-bias")),)
+            kw["acc"] = (tuple(v * 1e-3 for v in parse_triple(temp_acc_bias, "--temp-acc-bias")),)
         if temp_gyro_bias is not None:  # deg/s per deg C -> rad/s per deg C
-            kw["gyro"] = (tuple(math.radians(v) for v in _triple(temp_gyro_bias,
-                                                                 "--temp-gyro-bias")),)
+            kw["gyro"] = (tuple(math.radians(v) for v in parse_triple(temp_gyro_bias,
+                                                                      "--temp-gyro-bias")),)
         if acc2 is not None:  # the second IMU drifts too, by coefficients of its own
             kw["acc2"] = ACC2_TEMP
             kw["gyro2"] = GYRO2_TEMP if gyro2 else ()
         if temp_acc_scale is not None:  # ppm per deg C -> relative
-            kw["acc_scale"] = tuple(v * 1e-6 for v in _triple(temp_acc_scale,
-                                                              "--temp-acc-scale"))
+            kw["acc_scale"] = tuple(v * 1e-6 for v in parse_triple(temp_acc_scale,
+                                                                   "--temp-acc-scale"))
         out["temperature"] = TemperatureProfile(**kw)
     return out
 

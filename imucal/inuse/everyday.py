@@ -15,72 +15,20 @@ the truth keeps both, and where the device really lay still.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
+from imucal.inuse.flight import make_flight
+from imucal.inuse.truth import Drift, EverydayTruth, H
 from imucal.models import SensorModel
 from imucal.numerics import quaternion as quat
 from imucal.session import Session
 from imucal.synth import make_motion, random_acc_model, random_gyro_model
 
 ACTIVITIES = ("walk", "jumps", "desk", "flight")  # flight: imucal.inuse.flight
-H = 1e-4  # s: the half step of the body rate's difference (O(h^2): 1e-8 of the rate)
 TAP_S = 0.02  # a tap's pulse, s
 EDGE_S = 1.0  # an activity's ramp in and out at each end of a carry, s
-
-
-@dataclass(frozen=True)
-class Drift:
-    """How the sensor changed since it was calibrated, in its raw units: the gyroscope's bias
-    moved by ``gyro_bias`` (rad/s), the accelerometer's by ``acc_bias`` (g), each accelerometer
-    scale multiplied by ``1 + acc_scale``."""
-
-    gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    acc_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    acc_scale: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    def apply(self, acc: SensorModel, gyro: SensorModel) -> tuple[SensorModel, SensorModel]:
-        return (SensorModel(T=acc.T, K=acc.K * (1 + np.asarray(self.acc_scale, float)),
-                            b=acc.b + np.asarray(self.acc_bias, float)),
-                SensorModel(T=gyro.T, K=gyro.K, b=gyro.b + np.asarray(self.gyro_bias, float)))
-
-
-@dataclass(frozen=True)
-class EverydayTruth:
-    """What made a recording of everyday use: the calibration as stored (before the drift) and
-    the sensor as it is now, the rests (``still``: [t0, t1) where the device really lay still,
-    taps and vibration cut out), the taps' times and the stretches of tapping and of typing."""
-
-    activity: str
-    stored_acc: SensorModel
-    stored_gyro: SensorModel
-    acc: SensorModel
-    gyro: SensorModel
-    drift: Drift
-    still: np.ndarray  # (S, 2) s
-    taps: np.ndarray  # (T,) s, the start of each pulse
-    disturbed: np.ndarray  # (D, 2) s: tapping bursts and typing, where no moment may be found
-    acc_noise: float  # g per axis per sample
-    gyro_noise: float  # rad/s per axis per sample
-    rate: float
-
-    def to_dict(self) -> dict:
-        def m(model: SensorModel) -> dict:
-            return {"T": model.T.tolist(), "K": model.K.tolist(), "b": model.b.tolist()}
-
-        return {"activity": self.activity, "stored": {"accelerometer": m(self.stored_acc),
-                                                      "gyroscope": m(self.stored_gyro)},
-                "accelerometer": m(self.acc), "gyroscope": m(self.gyro),
-                "drift": {"gyro_bias_rad_s": self.drift.gyro_bias.tolist(),
-                          "acc_bias_g": self.drift.acc_bias.tolist(),
-                          "acc_scale": self.drift.acc_scale.tolist()},
-                "still_intervals": self.still.tolist(), "taps": self.taps.tolist(),
-                "disturbed_intervals": self.disturbed.tolist(),
-                "noise": {"accelerometer_g": self.acc_noise, "gyroscope_rad_s": self.gyro_noise},
-                "rate_hz": self.rate, "g": 1.0,
-                "model": "a = T K (a_raw - b); w = T_g K_g (w_raw - b_g) (method.md M2, M4); "
-                         "'stored' is the calibration before the drift"}
 
 
 # Per activity: seconds at rest (each rest drawn 0.8-1.2 times this), seconds carried between
@@ -103,9 +51,7 @@ def make_everyday(activity: str = "walk", minutes: float = 10.0, seed: int = 0,
     if activity not in ACTIVITIES:
         raise ValueError(f"activity must be one of {ACTIVITIES}, got {activity!r}")
     rng = np.random.default_rng([seed, ACTIVITIES.index(activity)])
-    if activity == "flight":  # a vehicle: its own module (imported here: it imports this one)
-        from imucal.inuse.flight import make_flight
-
+    if activity == "flight":  # a vehicle: its own module
         return make_flight(minutes, rng, drift or Drift(), rate, acc_noise, gyro_noise,
                            stored_acc, stored_gyro, seed)
     hold, carry, held = _PLAN[activity]

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal.inuse.everyday import Drift, EverydayTruth, H
+from imucal.inuse.truth import Drift, EverydayTruth, H
 from imucal.models import SensorModel
 from imucal.numerics import quaternion as quat
 from imucal.session import Session

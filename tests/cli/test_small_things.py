@@ -16,7 +16,7 @@ import pytest
 import typer
 
 import imucal
-from imucal.cli.commands import app
+from imucal.cli.app import app
 from imucal.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,6 +58,18 @@ def test_usage_lines_name_arguments_without_braces(capsys):
         usage = out.splitlines()[0]
         assert rc == 0 and usage.startswith(f"Usage: imucal {' '.join(path)} "), usage
         assert "{" not in usage and "}" not in usage, usage
+
+
+def test_an_xyz_option_takes_three_numbers(tmp_path, capsys):
+    """synth's --drift-* and --temp-* options (imucal.cli.options.parse_triple): a usage error
+    naming the option and what was given, before anything is made or written."""
+    for opts, bad in ((["--activity", "walk", "--drift-acc-bias", "1,2"], "--drift-acc-bias"),
+                      (["--activity", "desk", "--drift-gyro-bias", "1,2,1e7"], "--drift-gyro-bias"),
+                      (["--temperature", "10", "40", "--temp-gyro-bias", "a,b,c"],
+                       "--temp-gyro-bias")):
+        rc, _, err = cli(capsys, "synth", tmp_path / "x.csv", *opts)
+        assert rc == 2 and f"Invalid value for '{bad}': expected three numbers X,Y,Z" in err, err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_acc_only_help_says_what_each_command_does(capsys):

@@ -16,6 +16,7 @@ from imucal.synth import make_session
 from viewer import paths as P
 from viewer import readback as rb
 from viewer.recording import save_recording
+from viewer.stream import magnitudes_for_display
 
 SCREEN = 600  # SCREEN_ROWS for these tests
 
@@ -173,5 +174,5 @@ def test_envelope_of_nothing_to_cut_is_the_signal_itself():
     x = np.arange(30.0).reshape(10, 3)
     still = np.zeros(10, bool)
     still[3:6] = True
-    tt, vv, d = D.magnitudes_for_display(t, x, still, keep_still=True)
+    tt, vv, d = magnitudes_for_display(t, x, still, keep_still=True)
     assert tt is t and vv is x and (d.rows, d.still_bucket, d.moving_bucket) == (10, 1, 1)

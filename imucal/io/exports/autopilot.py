@@ -11,13 +11,9 @@ Both apply, in the sensor's frame, offset first and then a per-axis scale:
   orientation, ``accel -= INS_ACCOFFS; accel *= INS_ACCSCAL`` (m/s^2, dimensionless);
   gyroscope ``gyro -= INS_GYROFFS`` (rad/s), no scale.
 
-These models have a diagonal scale only. imucal's ``a = T K (a_raw - b)`` becomes
-``a ~ K ⊙ (a_raw - b)`` in SI units: the offsets and scales are kept, the misalignment T is
-dropped (T has a unit diagonal, so nothing else changes). What that costs is computed from the
-model over 2000 directions spread over the sphere (the calibration file holds the still
-blocks' times, not their mean readings): the vector error ``|K ⊙ (a_raw - b) - a|`` of a still
-device reading |g| in each direction, RMS and maximum, in mg. The gyroscope keeps only its
-offset: its scale and misalignment are dropped, and the rate error is given in % of the rate.
+These models have a diagonal scale only: imucal's ``a = T K (a_raw - b)`` becomes
+``a ~ K ⊙ (a_raw - b)`` in SI units, the gyroscope keeps only its offset, and what dropping the
+rest costs is said in mg and % of the rate (:mod:`imucal.io.exports.diagonal`, which states how).
 Both autopilots re-estimate gyroscope offsets at start-up, so those values are a starting point.
 
 Several triads (method.md §11) or a bias in temperature (§12): one instance per IMU and the
@@ -36,36 +32,12 @@ import numpy as np
 from imucal.io.exports.common import (
     Exported,
     ExportInput,
-    fibonacci_sphere,
     fmt_num,
     require_gyro_rad,
     si_acc_factors,
 )
+from imucal.io.exports.diagonal import diagonal_acc, dropped_gyro_percent, dropped_misalignment_mg
 from imucal.io.exports.mag import ardupilot_mag, px4_mag
-from imucal.models import SensorModel
-
-
-def diagonal_acc(model: SensorModel, c_in: float, c_out: float) -> tuple[np.ndarray, np.ndarray]:
-    """(offset m/s^2, scale) of ``a_SI = scale ⊙ (a_raw_SI - offset)`` from imucal's model."""
-    return model.b * c_in, model.K * c_out / c_in
-
-
-def dropped_misalignment_mg(model: SensorModel, g: float, n: int = 2000
-                            ) -> tuple[float, float]:
-    """RMS and max over the sphere of ``|K ⊙ (a_raw - b) - a|`` for ``a = g u``, in mg."""
-    a = g * fibonacci_sphere(n)
-    raw = model.invert(a)
-    diag = (raw - model.b) * model.K
-    err = np.linalg.norm(diag - a, axis=1) / g * 1000.0
-    return float(np.sqrt(np.mean(err**2))), float(err.max())
-
-
-def dropped_gyro_percent(model: SensorModel, n: int = 2000) -> tuple[float, float]:
-    """RMS and max over rotation directions of ``|(w_raw - b) - w| / |w|`` in %."""
-    w = fibonacci_sphere(n)
-    raw = model.invert(w)
-    err = np.linalg.norm((raw - model.b) - w, axis=1) * 100.0
-    return float(np.sqrt(np.mean(err**2))), float(err.max())
 
 
 def _losses(inp: ExportInput, seg) -> list[str]:

@@ -22,11 +22,6 @@ import numpy as np
 
 from imucal.errors import ImucalError
 from imucal.io.exports import thermal
-from imucal.io.exports.autopilot import (
-    diagonal_acc,
-    dropped_gyro_percent,
-    dropped_misalignment_mg,
-)
 from imucal.io.exports.common import (
     Exported,
     ExportInput,
@@ -35,6 +30,7 @@ from imucal.io.exports.common import (
     segment_list,
     si_acc_factors,
 )
+from imucal.io.exports.diagonal import diagonal_acc, dropped_gyro_percent, dropped_misalignment_mg
 from imucal.io.exports.mag import ardupilot_mag, px4_mag
 from imucal.models import SensorModel
 from imucal.stages.apply import Calibration, SegmentModels

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from imucal.io.exports.c_pieces import piece_line, pieces_table
 from imucal.io.exports.common import Exported, ExportInput, fmt_num, piece_models
 from imucal.io.exports.mag import MagModel
-from imucal.models import SensorModel
 
 _PRELUDE = """\
 #ifndef IMUCAL_CALIBRATION_H
@@ -72,32 +72,6 @@ static inline void imucal_apply_piece(const imucal_piece *p, const imucal_real r
 """
 
 
-def _piece(t0: float, t1: float, a: np.ndarray, b: np.ndarray) -> str:
-    rows = ", ".join("{" + ", ".join(fmt_num(v) for v in row) + "}" for row in a)
-    return (f"    {{{_time(t0)}, {_time(t1)}, {{{rows}}}, "
-            f"{{{', '.join(fmt_num(v) for v in b)}}}}},")
-
-
-def _time(t: float) -> str:
-    return fmt_num(t) if np.isfinite(t) else ("-1e308" if t < 0 else "1e308")
-
-
-def _table(name: str, pieces: list[tuple[str, float, float, SensorModel | None]]) -> list[str]:
-    n = len(pieces)
-    lines = [f"#define {name.upper()}_PIECES {n}",
-             f"static const imucal_piece {name}_pieces[{n}] = {{"]
-    for i, (kind, t0, t1, model) in enumerate(pieces):
-        assert model is not None
-        if kind == "between":
-            # A segment owns its closed interval: the gap starts just after its end.
-            t0 = float(np.nextafter(t0, np.inf))
-        # The first piece reaches back to the start of time, the last on to its end.
-        lines.append(_piece(-np.inf if i == 0 else t0, np.inf if i == n - 1 else t1,
-                            model.matrix, model.b))
-    lines.append("};")
-    return lines
-
-
 def _function(sensor: str, name: str, unit_in: str, unit_out: str) -> list[str]:
     return [f"/* {sensor}: raw in {unit_in} -> calibrated in {unit_out}; t in seconds. */",
             f"static inline void imucal_calibrate_{sensor}(double t, const imucal_real raw[3], "
@@ -125,7 +99,7 @@ def _magnetometer(mag: MagModel) -> list[str]:
              f"{{{', '.join(fmt_num(v) for v in mag.b)}}};",
              _matrix("imucal_mag_R_am", R),
              "static const imucal_piece imucal_mag = "
-             + _piece(-np.inf, np.inf, mag.A, mag.b).strip().rstrip(",") + ";",
+             + piece_line(-np.inf, np.inf, mag.A, mag.b).strip().rstrip(",") + ";",
              "",
              "static inline void imucal_calibrate_magnetometer(const imucal_real raw[3], "
              "imucal_real out[3])",
@@ -146,10 +120,10 @@ def export(inp: ExportInput, out: Path, segment: int | None) -> Exported:
             *[f" * {line}" for line in inp.header_lines()],
             f" * {len(segs)} segment(s); between two segments the mean of their parameters.",
             " */", ""]
-    lines = head + [_PRELUDE, *_table("imucal_acc", piece_models(segs, "acc")), ""]
+    lines = head + [_PRELUDE, *pieces_table("imucal_acc", piece_models(segs, "acc")), ""]
     has_gyro = all(s.gyro is not None for s in segs)
     if has_gyro:
-        lines += [*_table("imucal_gyro", piece_models(segs, "gyro")), ""]
+        lines += [*pieces_table("imucal_gyro", piece_models(segs, "gyro")), ""]
     lines += [f"#define IMUCAL_HAS_GYROSCOPE {1 if has_gyro else 0}", "", _FUNCTIONS]
     lines += _function("accelerometer", "imucal_acc", cal.acc_unit_raw, cal.acc_unit)
     if has_gyro:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imucal.io.exports.c_header import _table  # the reference's own layout of pieces
+from imucal.io.exports.c_pieces import pieces_table  # the reference's own layout of pieces
 from imucal.io.exports.common import ExportInput, fmt_num, piece_models
 from imucal.io.exports.sections import TriadExport
 from imucal.stages.temperature import BiasPolynomial
@@ -95,12 +95,12 @@ def _triad(i: int, tri: TriadExport) -> list[str]:
              + f"; raw {cal.acc_unit_raw} -> {cal.acc_unit}, {len(segs)} segment(s) of its own;"
              + (f" rotation to the reference {tri.angle_deg:.4g} deg */" if tri.R is not None
                 else " rotation to the reference not estimated: the identity */"),
-             *_table(f"{p}_acc", piece_models(segs, "acc")),
+             *pieces_table(f"{p}_acc", piece_models(segs, "acc")),
              f"static const imucal_real {p}_R_ref[3][3] = {_mat(R)};", ""]
     has_gyro = all(s.gyro is not None for s in segs)
     sensors = [("accelerometer", "acc")] + ([("gyroscope", "gyro")] if has_gyro else [])
     if has_gyro:
-        lines[-1:-1] = _table(f"{p}_gyro", piece_models(segs, "gyro"))
+        lines[-1:-1] = pieces_table(f"{p}_gyro", piece_models(segs, "gyro"))
     for sensor, short in sensors:
         lines += [f"static inline void {p}_calibrate_{sensor}(double t, const imucal_real "
                   "raw[3], imucal_real out[3])", "{",
