@@ -43,7 +43,15 @@ import rerun.blueprint as rrb
 from . import paths as P
 from .evidence import evidence_titles
 from .guide import guide_column
-from .layout import EVIDENCE_BOX, LCURVE_BOX, SWEEP_BOX, TRACE_BOX, TRACE_BOX_WIDE, Box
+from .layout import (
+    EVIDENCE_BOX,
+    LCURVE_BOX,
+    MAG_LCURVE_BOX,
+    SWEEP_BOX,
+    TRACE_BOX,
+    TRACE_BOX_WIDE,
+    Box,
+)
 from .magnetometer import mag_titles
 from .optimiser import WHATS, cost_title
 from .ranges import robust_range
@@ -251,8 +259,19 @@ def _magnetometer(result: Result) -> rrb.Horizontal:
             _ts("Dip per still block (deg): used blue, left out red; fitted grey",
                 P.MAG_DIP_USED, P.MAG_DIP_LEFT_OUT, P.MAG_DIP_FIT),
             lanes, row_shares=[3.0, 1.2, 1.2, 0.8]),
-        rrb.TextDocumentView(name="Magnetometer", origin=P.MAG_NOTE),
+        _mag_side(result),
         column_shares=[4, 1], name="Magnetometer")
+
+
+def _mag_side(result: Result) -> rrb.Container | rrb.View:
+    """The note, over the small L-curve of the soft iron's Tikhonov term (M8r) when fitted."""
+    note = rrb.TextDocumentView(name="Magnetometer", origin=P.MAG_NOTE)
+    fit = result.magnetometer
+    if fit is None or fit.lcurve is None:
+        return note
+    what = "no corner: the data determine it" if fit.lcurve.well_posed else "corner in red"
+    return rrb.Vertical(note, _plot2d(f"Soft iron L-curve: ρ vs η (log-log), {what}",
+                                      P.MAG_LCURVE, MAG_LCURVE_BOX), row_shares=[1, 1])
 
 
 def blueprint(result: Result | None = None, active_tab: int | str = 0,

@@ -34,6 +34,8 @@ class Box:
 
 # L-curve tab: the L-curve on the left half, four plots against lambda on the right.
 LCURVE_BOX = Box.fitting(794, 872, left=70, right=130, top=30, bottom=58)
+# The Magnetometer tab's small L-curve (M8r), under its note
+MAG_LCURVE_BOX = Box.fitting(400, 330, left=70, right=30, top=30, bottom=58)
 SWEEP_BOX = Box.fitting(793, 192)
 # Optimiser tab: four plots per sensor, one column per sensor (the whole width without one).
 TRACE_BOX = Box.fitting(793, 192)

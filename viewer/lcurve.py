@@ -14,7 +14,7 @@ from imucal.models import ACC_PARAM_NAMES
 
 from . import paths as P
 from .columns import CALIBRATED, CORNER, RAW, SEGMENT_COLORS, XYZ, log10_axis
-from .layout import LCURVE_BOX, SWEEP_BOX
+from .layout import LCURVE_BOX, SWEEP_BOX, Box
 from .plot2d import (
     LABEL_DROP,
     LABEL_PX,
@@ -52,10 +52,12 @@ def log_lcurves(result: Result, rec: rr.RecordingStream, rows: dict[str, int]) -
 # --- the L-curve -------------------------------------------------------------------------------
 
 
-def _log_lcurve_plot(rec: rr.RecordingStream, curves: list) -> None:
+def _log_lcurve_plot(rec: rr.RecordingStream, curves: list, root: str = P.LCURVE,
+                     box: Box = LCURVE_BOX, eta: str = "|θ − θ0|") -> None:
     """rho against eta, both log10 (y up: eta grows upwards), each point labelled with its
-    lambda where the label has room, each corner in red with its own label (placed first)."""
-    box = LCURVE_BOX
+    lambda where the label has room, each corner in red with its own label (placed first);
+    ``root`` the plot's path (the magnetometer's curve, M8r, has its own), ``eta`` what the
+    solution norm is of."""
     xy = [np.column_stack([log10_axis(lc.residual_norm), log10_axis(lc.solution_norm)])
           for _, lc, _, _ in curves]
     allxy = np.vstack(xy)
@@ -70,7 +72,7 @@ def _log_lcurve_plot(rec: rr.RecordingStream, curves: list) -> None:
             label = ("" if len(curves) == 1 else f"{name}: ") + what.format(lc.lambdas[c])
             taken.append(_label_box(to_scene(box, xa, ya, pts[c:c + 1])[0], label, 7.0))
             corners.append(Series(
-                _corner_name(path),
+                _corner_name(path, root),
                 "", CORNER, pts[c:c + 1, 0], pts[c:c + 1, 1], line=False, size=7.0,
                 labels=[label], values={"lambda": float(lc.lambdas[c]), "index": int(c),
                                         "residual_norm": float(lc.residual_norm[c]),
@@ -79,28 +81,29 @@ def _log_lcurve_plot(rec: rr.RecordingStream, curves: list) -> None:
     for (path, lc, color, name), pts in zip(curves, xy):
         labels = _thin(to_scene(box, xa, ya, pts), [f"λ={la:.2g}" for la in lc.lambdas],
                        lc.corner, taken)
-        series.append(Series(_rel(path), name, color, pts[:, 0], pts[:, 1],
+        series.append(Series(_rel(path, root), name, color, pts[:, 0], pts[:, 1],
                              size=3.0, labels=labels,
                              values={"lambda": np.asarray(lc.lambdas, float),
                                      "residual_norm": np.asarray(lc.residual_norm, float),
                                      "solution_norm": np.asarray(lc.solution_norm, float)}))
-    log_plot(rec, P.LCURVE, box, xa, ya, series + corners, legend=len(curves) > 1)
+    log_plot(rec, root, box, xa, ya, series + corners, legend=len(curves) > 1)
     title_x = "residual norm ρ = |r_data|  (log scale) →"
-    title_y = "↑ solution norm η = |θ − θ0|  (log scale)"
-    text(rec, f"{P.LCURVE}/frame/titles",
+    title_y = f"↑ solution norm η = {eta}  (log scale)"
+    text(rec, f"{root}/frame/titles",
          [[box.width / 2, box.height + 40], [label_width(title_y) / 2 - box.left + 6,
                                              -box.top + LABEL_PX / 2]],
          [title_x, title_y], [TEXT])
 
 
-def _corner_name(path: str) -> str:
-    """The corner's series: ``corner`` for the whole session, ``segment_<i>_corner``."""
-    return _rel(P.LCURVE_CORNER) if path == P.LCURVE_POINTS else _rel(path) + "_corner"
+def _corner_name(path: str, root: str = P.LCURVE) -> str:
+    """The corner's series: ``corner`` for the whole session (``<root>/points``),
+    ``segment_<i>_corner``."""
+    return "corner" if path == P.series(root, "points") else _rel(path, root) + "_corner"
 
 
-def _rel(path: str) -> str:
+def _rel(path: str, root: str = P.LCURVE) -> str:
     """A series' path below the plot (what :class:`Series` takes)."""
-    return path.removeprefix(P.LCURVE + "/")
+    return path.removeprefix(root + "/")
 
 
 def _label_box(centre: np.ndarray, label: str, radius: float

@@ -9,7 +9,9 @@
   those it left out (``MagFit.used``), with a lane of ``MagFit.disturbances``;
 - each still block's dip (``block_dip_deg`` at its middle, ``block_times``) apart from the
   blocks left out (``block_used``), with the fitted dip as a line;
-- the quality figures and the coverage (``MagQuality``) as AnyValues and a markdown note.
+- the quality figures and the coverage (``MagQuality``) as AnyValues and a markdown note;
+- the L-curve of the shape's Tikhonov term (``MagFit.lcurve``, M8r) with its corner, a small
+  2D plot as the accelerometer's (:func:`viewer.lcurve._log_lcurve_plot`).
 
 The 3D scenes hold every k-th sample, at most :data:`MAG_POINTS`; the norm is an envelope
 past ``SCREEN_ROWS`` (:mod:`viewer.decimate`). Nothing is logged without a magnetometer.
@@ -112,6 +114,12 @@ def log_magnetometer(result: Result, rec: rr.RecordingStream, rows: dict[str, in
     _log_disturbed(fit, rec, rows)
     _log_dips(fit, t[ok], rec, rows)
     _log_info(fit, unit, len(idx), rec)
+    if fit.lcurve is not None:
+        from .layout import MAG_LCURVE_BOX
+        from .lcurve import _log_lcurve_plot
+
+        _log_lcurve_plot(rec, [(P.MAG_LCURVE_POINTS, fit.lcurve, CALIBRATED, "magnetometer")],
+                         P.MAG_LCURVE, MAG_LCURVE_BOX, "|M / (tr M / 3) − I|")
 
 
 def _log_disturbed(fit: MagFit, rec: rr.RecordingStream, rows: dict[str, int]) -> None:
@@ -180,6 +188,12 @@ def mag_note(fit: MagFit) -> str:
                 else f" in-sample, {q.norm_rms_held_out_pct:.3g} % held out"),
              f"- coverage: the field reached {q.coverage:.0%} of directions"
              + ("" if q.missing is None else f"; {q.missing}")]
+    if fit.lam is not None and fit.lcurve is not None:
+        lines.append(f"- soft iron held towards a sphere with λ = {fit.lam:.3g} "
+                     + ("(no corner: the data determine it)" if fit.lcurve.well_posed
+                        else "(the L-curve's corner)")
+                     + ("" if not fit.undetermined else
+                        f"; not determined by this recording: {', '.join(fit.undetermined)}"))
     if q.dip_spread_deg is not None:
         lines.append(f"- dip spread over {q.blocks} still blocks {q.dip_spread_deg:.3g} deg")
     if (a := fit.alignment) is not None:

@@ -136,6 +136,11 @@ MAG_DIP_LEFT_OUT = "magnetometer_dip/left_out_deg"  # blocks not used for R_am a
 MAG_DIP_FIT = "magnetometer_dip/fitted_deg"  # MagFit.dip_deg, 2 rows (a line)
 MAG_INFO = "magnetometer/info"  # static AnyValues: the fit's figures (MagQuality's)
 MAG_NOTE = "magnetometer/note"  # static TextDocument (markdown): coverage, disturbances
+# M8r's L-curve, a 2D plot as LCURVE's: x = log10 rho (RMS norm residual, raw unit), y = log10
+# eta (|M / (tr M / 3) - I|_F); AnyValues lambda, residual_norm, solution_norm
+MAG_LCURVE = "magnetometer_lcurve"
+MAG_LCURVE_POINTS = series(MAG_LCURVE, "points")
+MAG_LCURVE_CORNER = series(MAG_LCURVE, "corner")  # Points2D + AnyValues(lambda, index, ...)
 
 # The Triads tab (:mod:`viewer.triads`): only for a session with other triads (``Result.triads``,
 # method.md §11); triad ``i`` numbered from 2 (the reference is 1), its name in its info.

@@ -123,6 +123,9 @@ magnetometer_dip/fitted_deg                  time       Scalars ``MagFit.dip_deg
 magnetometer/info                            static     AnyValues: field, dip, quality figures,
                                                         coverage, missing, disturbances (text)
 magnetometer/note                            static     TextDocument (markdown): the same, read
+magnetometer_lcurve/points | corner          static     Points2D (log10 rho, log10 eta) of
+                                                        ``MagFit.lcurve`` (M8r) and its corner;
+                                                        AnyValues lambda, residual_norm, ...
 =========================================== ========== ============================================
 
 (*) Signals longer than ``SCREEN_ROWS`` (20 000) samples are logged as a min/max envelope of at

@@ -65,7 +65,21 @@ def magnetometer_section(result: Result) -> dict:
                                 "jackknife of std_block_s seconds (method.md M8s)"},
         "samples": fit.samples, "samples_used": int(fit.used.sum()), "start": fit.start,
         "soft_iron_estimated": fit.soft_iron,
+        "undetermined": list(fit.undetermined), "lambda": _f(fit.lam),
+        "lcurve": _mag_lcurve(fit.lcurve),
         "disturbances": [d.to_dict() for d in fit.disturbances]}}
+
+
+def _mag_lcurve(lc: Any) -> dict | None:
+    """M8r's L-curve (imucal.stages.accel.LCurve of the shape's Tikhonov term)."""
+    if lc is None:
+        return None
+    return {"lambdas": _fl(lc.lambdas), "residual_norm": _fl(lc.residual_norm),
+            "solution_norm": _fl(lc.solution_norm), "corner": int(lc.corner),
+            "well_posed": bool(lc.well_posed),
+            "note": "M8r: residual_norm the RMS norm residual (raw unit), solution_norm "
+                    "|M / (tr M / 3) - I|_F, at each lambda whose fit is a physical "
+                    "ellipsoid; corner the index of the lambda chosen (method.md §9)"}
 
 
 def _alignment(d: dict) -> dict:

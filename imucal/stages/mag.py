@@ -20,7 +20,11 @@ Estimation, in order:
 
 1. a closed-form algebraic ellipsoid fit of every sample (no hand-set guess, any unit:
    :func:`imucal.numerics.ellipsoid.algebraic_fit`), refined by maximum likelihood on every
-   sample (still or not): residual ``|G (m_raw - b)| - 1``;
+   sample (still or not): residual ``|G (m_raw - b)| - 1``, for the search below; the fit
+   returned is maximum likelihood with the shape held towards a sphere by a Tikhonov term,
+   lambda at the L-curve's corner (M8r, :mod:`imucal.numerics.ellipsoid_tikhonov`): negligible
+   where the directions determine the soft iron, the sphere's pull where they do not; the
+   standard errors reported are the data's alone, none where past UNDETERMINED_STD;
 2. a field that is not constant (a magnet nearby or carried along, a steel table) is found and
    left out: a step of the field inside a still block (the sensor did not turn, the field
    moved); windows whose mean norm residual departs from the others' by far more than their
@@ -58,7 +62,9 @@ from imucal.numerics.ellipsoid import (
     sym_from_vec,
     vec_from_sym,
 )
+from imucal.numerics.ellipsoid_tikhonov import RegularisedFit, regularised_fit
 from imucal.numerics.windows import runs_of_true, samples_within
+from imucal.stages.accel import LCurve
 from imucal.stages.accel_cv import axis_words
 from imucal.stages.mag_align import (
     MIN_BLOCKS_WITH_TURNS,
@@ -105,6 +111,10 @@ MIN_BLOCK_SAMPLES = 3
 # truth (or the dip 50 deg off) on 6 of 12 synthetic sessions tried with 6 or 8 blocks
 # (tests/stages/test_mag_turns.py).
 MIN_BLOCKS = 10
+# A soft-iron entry, or the hard iron or field over the field, whose data-alone standard error
+# (M8r) exceeds this is not determined by the recording: held near the prior, no error given
+# (1 % of the field turns a calibrated direction by up to 0.6 deg).
+UNDETERMINED_STD = 0.01
 COVERAGE_ANGLE_DEG = 15.0  # a field direction is covered by a sample within this angle
 GOOD_COVERAGE = 0.9
 
@@ -199,6 +209,12 @@ class MagFit:
     # jackknife that measured it (s: the fit's points in it times their mean spacing)
     se_design_effect: float = 1.0
     se_block_s: float = 0.0
+    # M8r: the L-curve of the shape's Tikhonov term (thetas: (L, 9) g11..g33, b in the raw
+    # unit; residual_norm the RMS norm residual in the raw unit; solution_norm |M / (tr M /
+    # 3) - I|_F) and the lambda chosen; the parameters the data leave open (UNDETERMINED_STD)
+    lcurve: LCurve | None = None
+    lam: float | None = None
+    undetermined: tuple[str, ...] = ()
 
     @property
     def G(self) -> np.ndarray:
@@ -498,18 +514,25 @@ def _derived_cov(p9: np.ndarray, cov9: np.ndarray) -> np.ndarray:
     return J @ cov9 @ J.T
 
 
-def _held_out_pct(x: np.ndarray, t: np.ndarray) -> float | None:
+def _held_out_pct(x: np.ndarray, t: np.ndarray, whole: EllipsoidFit | None = None
+                  ) -> float | None:
     """The norm residual RMS (%) of each half of the recording's time judged by the fit of
-    the other half."""
+    the other half; None where a half reaches less than MIN_SPHERE_COVERAGE of the
+    directions as the ``whole`` recording's fit sees them."""
     if len(x) < 40:
         return None
     cut = np.searchsorted(t, np.median(t))
     a, b = x[:cut], x[cut:]
-    try:
-        ra = fit_ellipsoid(_subsample(b)).residuals(a)
-        rb = fit_ellipsoid(_subsample(a)).residuals(b)
+    try:  # each half fitted as the whole is (M8r: its own L-curve)
+        fb, fa = regularised_fit(_subsample(b)).fit, regularised_fit(_subsample(a)).fit
     except (ValueError, np.linalg.LinAlgError):
         return None
+    if whole is not None and min(_coverage(a, whole), _coverage(b, whole)) < MIN_SPHERE_COVERAGE:
+        # a half that reaches too few directions for even the hard iron (the whole would be
+        # refused) judges nothing: its fit extrapolates, or escapes to a huge sphere whose
+        # residual relative to the radius is near zero (x-io's second half: 1e-8 %)
+        return None
+    ra, rb = fb.residuals(a), fa.residuals(b)
     r = np.r_[ra, rb]
     return float(100 * np.sqrt(np.mean(r * r)))
 
@@ -562,6 +585,11 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
         f.t_start - width <= d.t_start <= f.t_end + width for f in found)] + found
     warnings: list[RunWarning] = []
     xk, tk = x[keep], t[keep]
+    try:  # M8r: the fit returned, its shape held towards a sphere as the L-curve says
+        reg = regularised_fit(_subsample(xk))
+    except (ValueError, np.linalg.LinAlgError) as e:
+        raise MagUnfit(f"no ellipsoid fits the samples ({e})", tuple(disturbances)) from None
+    fit = reg.fit
 
     B = 0 if block_times is None else len(block_times)
     alignment = None
@@ -631,10 +659,9 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
         cov_out = fit.cov
     p9 = fit.params
     d = _derived(p9)
-    dcov = _derived_cov(p9, cov_out[:9, :9])
-    dstd = np.sqrt(np.diag(dcov))
     F = float(d[6])
     M = sym_from_vec(d[:6])
+    dstd, undetermined = _data_std(p9, reg, F)
     r_in = fit.residuals(xk)
     dip_spread = None
     if R is not None and block_used.sum() > 1:
@@ -650,15 +677,18 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
         warnings.append(RunWarning("mag_coverage", f"the field reached {covered:.0%} of "
                                    f"directions: {missing}"))
     quality = MagQuality(norm_rms_pct=float(100 * np.sqrt(np.mean(r_in * r_in))),
-                         norm_rms_held_out_pct=_held_out_pct(xk, tk),
+                         norm_rms_held_out_pct=_held_out_pct(xk, tk, fit),
                          dip_spread_deg=dip_spread, coverage=covered, missing=missing,
                          blocks=int(block_used.sum()), heading_std_deg=heading)
-    if fit.model == "sphere":
+    soft_iron = not any(n.startswith("M") for n in undetermined)
+    if undetermined:
         warnings.append(RunWarning(
-            "mag_soft_iron_not_estimated", f"the field reached {covered:.0%} of directions, "
-            f"too few for the soft iron ({MIN_COVERAGE:.0%} needed): M is held at the "
-            "identity and only the hard iron and the field are fitted; turn the device "
-            "through more directions for the soft iron"))
+            "mag_soft_iron_not_estimated" if not soft_iron else "mag_undetermined",
+            f"the field reached {covered:.0%} of directions, too few to determine "
+            f"{', '.join(undetermined)} (each left more than {UNDETERMINED_STD:g} of the "
+            "field uncertain by the data alone): the soft iron is held near a sphere by "
+            f"the prior (lambda {reg.lam:.2g}, the L-curve's corner) and those are given no "
+            "standard error; turn the device through more directions for the soft iron"))
     if disturbances:
         left = int((~keep).sum())
         warnings.insert(0, RunWarning(
@@ -674,11 +704,39 @@ def calibrate_magnetometer(stream: Stream, block_times: np.ndarray | None = None
                   stream=stream.name, samples=len(stream.t), used=_full_mask(finite, keep),
                   start=fit.start, disturbances=tuple(disturbances), quality=quality,
                   block_dip_deg=block_dip, block_used=block_used, warnings=tuple(warnings),
-                  soft_iron=fit.model != "sphere", alignment=None if R is None else alignment,
+                  soft_iron=soft_iron, alignment=None if R is None else alignment,
                   se_design_effect=fit.deff,
                   se_block_s=float(fit.block * (tk[-1] - tk[0]) / max(fit.n - 1, 1)),
                   block_times=None if block_times is None
-                  else np.array(block_times, float).reshape(-1, 2))
+                  else np.array(block_times, float).reshape(-1, 2),
+                  lcurve=_lcurve(reg), lam=reg.lam, undetermined=undetermined)
+
+
+# the names of _derived's entries, for the parameters the data leave open
+_DERIVED_NAMES = ("M_xx", "M_xy", "M_xz", "M_yy", "M_yz", "M_zz", "field", "b_x", "b_y", "b_z")
+
+
+def _data_std(p9: np.ndarray, reg: RegularisedFit, F: float
+              ) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The standard errors of ``(M's 6 entries, F, b)`` from the data alone (M8r: the prior
+    is no measurement), NaN past UNDETERMINED_STD (of the field for F and b), and the names
+    of those; the soft iron's all where lambda is the largest (M8r: held at the sphere)."""
+    std = np.sqrt(np.clip(np.diag(_derived_cov(p9, reg.cov_data)), 0, None))
+    limit = np.r_[np.full(6, UNDETERMINED_STD), np.full(4, UNDETERMINED_STD * abs(F))]
+    over = ~(std <= limit)
+    if reg.corner == len(reg.lambdas) - 1:
+        # the sphere's end: the curve said the shape is not determined (no corner, and cut,
+        # straight or not determined at its plain end), whatever the errors linearised at the
+        # sphere say (a cap's: 0.005, where the plain fit's M was 0.042 off)
+        over[:6] = True
+    return (np.where(over, np.nan, std),
+            tuple(n for n, o in zip(_DERIVED_NAMES, over) if o))
+
+
+def _lcurve(reg: RegularisedFit) -> LCurve:
+    """M8r's curve as the accelerometer's (thetas in the raw unit, G and b)."""
+    return LCurve(lambdas=reg.lambdas, residual_norm=reg.rho, solution_norm=reg.eta,
+                  thetas=reg.params, corner=reg.corner, curvature=reg.curvature)
 
 
 def _full_mask(finite: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -130,6 +130,25 @@ def test_coverage_in_the_info_note_and_titles(mag):
     assert f"coverage {q.coverage:.0%}" in raw_title
 
 
+def test_the_soft_irons_lcurve_is_drawn_with_its_corner(mag):
+    """M8r's L-curve on the tab, read back: every lambda's (log10 rho, log10 eta) and the
+    corner, the core's LCurve's; 30 poses reach the directions: no corner, the plain fit."""
+    result, _, rrd = mag
+    lc = result.magnetometer.lcurve
+    pts = rb.values(rrd, P.MAG_LCURVE_POINTS)
+    np.testing.assert_array_equal(pts["lambda"], lc.lambdas)
+    xy = np.reshape(np.asarray(pts["Points2D:positions"], float), (-1, 2))
+    np.testing.assert_allclose(xy, np.column_stack([np.log10(lc.residual_norm),
+                                                    np.log10(lc.solution_norm)]), rtol=1e-5)
+    corner = rb.values(rrd, P.MAG_LCURVE_CORNER)
+    assert corner["lambda"] == result.magnetometer.lam == lc.lambdas[lc.corner]
+    np.testing.assert_allclose(np.ravel(corner["Points2D:positions"]), xy[lc.corner], rtol=1e-6)
+    label = corner["Points2D:labels"]
+    label = label if isinstance(label, str) else label[0]
+    assert lc.well_posed and label == f"chosen λ = {lc.lambdas[lc.corner]:.3g} (no corner)"
+    assert "λ = " in mag_note(result.magnetometer)
+
+
 def test_tab_only_with_a_magnetometer(mag, tmp_path):
     result, _, _ = mag
     tabs = [t.name for t in blueprint(result).root_container.contents]
@@ -192,7 +211,7 @@ def test_native_viewer_draws_the_magnetometer_tab(native_viewer, mag, tmp_path):
             time.sleep(0.5)
         _keep("tab-magnetometer.png", _shot(client))
         assert all(s > 0.002 for s in shares.values()), shares
-        assert len(views) == 6
+        assert len(views) == 7  # with the soft iron's L-curve (M8r)
         errors = [(v.name, r.summary) for v in client.get_state().views
                   if v.visible for r in v.reports if r.severity.lower() == "error"]
         assert not errors, errors
