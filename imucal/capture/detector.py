@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imucal.capture.turns import TurnBuffer
+from imucal.errors import plural
 from imucal.numerics.directions import distinct_orientations
 from imucal.numerics.windows import runs_of_true
 from imucal.stages.accel_cv import axis_words, coverage
@@ -398,7 +399,7 @@ def guide_line(st: DetectorState, turn: dict | None = None) -> str:
         return "waiting: keep the device still while the noise is measured"
     if st.state == "still":
         return (f"still {st.hold_s:4.1f} s (a hold counts from {MIN_HOLD_S:g} s, "
-                f"{ADVISED_HOLD_S:g} s advised); {st.orientations} poses")
+                f"{ADVISED_HOLD_S:g} s advised); {plural(st.orientations, 'pose')}")
     more = f", {need} more needed" if need else ""
     rate = ""
     if turn is not None and turn.get("turn_peak_dps") is not None and turn.get("rate_limit_dps"):
@@ -406,4 +407,4 @@ def guide_line(st: DetectorState, turn: dict | None = None) -> str:
         rate = (f"; turn {turn['rate_dps']:.0f} deg/s, peak {turn['turn_peak_dps']:.0f} of "
                 f"{turn['rate_limit_dps']:.0f} deg/s" + (" (too fast: turn more slowly)"
                                                            if fast else ""))
-    return f"moving; {st.orientations} poses{more}: next hold with {st.next_pose}{rate}"
+    return f"moving; {plural(st.orientations, 'pose')}{more}: next hold with {st.next_pose}{rate}"

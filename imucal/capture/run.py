@@ -62,7 +62,8 @@ class CaptureReport:
     def lines(self) -> list[str]:
         out = [f"capture         {self.samples} samples in {self.duration_s:.1f} s, "
                f"{plural(self.garbled, 'garbled line')} skipped; "
-               f"{self.holds} holds, {self.orientations} poses; stopped: {self.stopped}",
+               f"{plural(self.holds, 'hold')}, {plural(self.orientations, 'pose')}; "
+               f"stopped: {self.stopped}",
                f"running fits    {self.calibrations}"
                + (f"; last {self.progress.text()}" if self.progress is not None else ""),
                "whole session   " + (self.final.text() if self.final is not None else
