@@ -72,7 +72,7 @@ def result_line(result: Result) -> str:
                      f"({fmt(q.gravity_angle_rms_deg.after, '.3g')} in-sample)")
     lead = "" if result.verdict is None else f"{result.verdict.level}: "
     return (f"{'result':16s}{lead}{', '.join(parts)}; {plural(len(result.segments), 'segment')}, "
-            f"{plural(len(result.block_times), 'still block')}")
+            f"{plural(len(result.block_times), 'still pose')}")
 
 
 def print_summary(result: Result, written: list[str], verbose: bool = False) -> None:
