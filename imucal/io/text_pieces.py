@@ -56,8 +56,12 @@ def read_text_pieces(path: Path, source: str, store: Spill) -> Table:
     errors)."""
     try:
         return _read(path, source, store)
-    except (_WholeWay, ImucalError):
-        return read_text(path.read_bytes(), source)  # says what is wrong, as it always did
+    except ImucalError as e:
+        if e.field == "spill":
+            raise  # no room for the spill: said as for a long .mat, not read into memory
+    except (_WholeWay, Exception):  # noqa: BLE001  # a parser's failure: the whole read says it
+        pass
+    return read_text(path.read_bytes(), source)  # says what is wrong, as it always did
 
 
 def _read(path: Path, source: str, store: Spill) -> Table:

@@ -202,3 +202,21 @@ def test_bad_text_is_refused_in_pieces_with_the_same_line(tmp_path, monkeypatch,
         errors.append(str(err.value))
     assert errors[0] == errors[1] and word.lower() in errors[0].lower()
     assert "\n" not in errors[0]
+
+
+def test_no_room_for_the_spill_is_said_as_for_a_mat(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    def full(fd, offset, length):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    csv = _sample_csv(tmp_path / "session.csv")
+    spill_dir = tmp_path / "spill"
+    spill_dir.mkdir()
+    monkeypatch.setattr(os, "posix_fallocate", full)
+    monkeypatch.setattr(text_pieces, "read_text", None)  # never read into memory instead
+    with pytest.raises(ImucalError) as e:
+        imucal.load_session(csv, spill=SpillPolicy(directory=spill_dir, above_bytes=0))
+    assert e.value.field == "spill" and str(spill_dir) in str(e.value)
+    assert "session.csv" in str(e.value) and list(spill_dir.iterdir()) == []
