@@ -27,6 +27,15 @@ class Table:
     # what a logger says of its recording (rate, time unit, initial still period)
     preamble: tuple[tuple[int, str, str], ...] = ()
     notes: tuple[str, ...] = ()  # what the reader did that the user should know (a cut line)
+    # ``np.column_stack`` of some columns, where a reader makes them its own way (a long text
+    # file's, into the spill: :mod:`imucal.io.text_pieces`); None: numpy's
+    stack: Callable[[list[int]], np.ndarray] | None = None
+
+    def columns(self, cols: list[int]) -> np.ndarray:
+        """The columns ``cols`` side by side, (N, len(cols)) float64."""
+        if self.stack is not None:
+            return self.stack(cols)
+        return np.column_stack([self.column(c) for c in cols])
 
     def label(self, i: int) -> str:
         return f"column {self.names[i]!r}" if self.names else f"column {i + 1}"

@@ -41,7 +41,8 @@ _UNSUPPORTED_MAGIC = {
 def read_file(path: Path, spill: Spill | None = None, threads: int = 1) -> Table | Variables:
     """Read any supported format; library exceptions become one-line ImucalErrors. ``spill``
     allocates the arrays of a MATLAB v5 file (large ones mapped, :mod:`imucal.io.spill`), whose
-    variables are inflated in up to ``threads`` threads."""
+    variables are inflated in up to ``threads`` threads, and of a long text file (read a piece
+    at a time from the spill's size up)."""
     source = display_name(path)
     try:
         with path.open("rb") as fh:
@@ -58,6 +59,11 @@ def read_file(path: Path, spill: Spill | None = None, threads: int = 1) -> Table
         if b"\x00" in head:
             raise ImucalError("unknown binary format; expected CSV/TSV/text, MATLAB .mat (v5 or "
                               "v7.3/HDF5) or Parquet", source=source)
+        if _long_text(path, spill):
+            from imucal.io.text_pieces import read_text_pieces
+
+            assert spill is not None
+            return read_text_pieces(path, source, spill)
         return read_text(path.read_bytes(), source)
     except ImucalError:
         raise
@@ -69,6 +75,15 @@ def read_file(path: Path, spill: Spill | None = None, threads: int = 1) -> Table
         raise ImucalError(f"cannot be read ({exc.strerror})", source=source) from None
     except _parser_errors() as exc:  # any parser failure is a problem with the file, in one line
         raise ImucalError(f"cannot read the file: {_one_line(exc)}", source=source) from None
+
+
+def _long_text(path: Path, spill: Spill | None) -> bool:
+    """A text file read a piece at a time into the spill (:mod:`imucal.io.text_pieces`): from
+    the size at which the spill maps an array (its policy's ``above_bytes``, the file's bytes
+    here: a number in text takes more bytes than its float64), so a long CSV is held as a long
+    .mat is."""
+    above = spill.policy.above_bytes if spill is not None else None
+    return above is not None and path.stat().st_size >= above
 
 
 def _parser_errors() -> tuple[type[BaseException], ...]:

@@ -81,6 +81,18 @@ class Spill:
         flat = np.frombuffer(m, dtype=np.float64)  # keeps the mapping alive while it lives
         return flat.reshape(shape, order=order)
 
+    def release(self, a: np.ndarray) -> None:
+        """Drop the resident pages of ``a``'s mapping now, not when the process passes its
+        budget: for an array written once and read seldom (a long text file's columns, once
+        parsed). The data stay in the page cache or on disk; nothing for an array in memory."""
+        base = a
+        while isinstance(base, np.ndarray):
+            base = base.base
+        if isinstance(base, memoryview):
+            base = base.obj
+        if isinstance(base, mmap.mmap) and self._watcher is not None and self._watcher.enabled:
+            base.madvise(mmap.MADV_DONTNEED)
+
     def note(self) -> str | None:
         """Where the signals are held, for the report; None when all are in memory."""
         if not self.mapped_bytes:

@@ -3,8 +3,6 @@ by name, by position, or as the user maps them with ``--columns``."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from imucal.errors import ImucalError
 from imucal.io.column_guess import guess_hint, paste_name
 from imucal.io.column_names import AXES, EXTRA_AXES, EXTRA_ROLES, LABELS, classify_name
@@ -146,7 +144,7 @@ def _parts_from_mapping(table: Table, mapping: dict[str, int], sensors: tuple[st
             raise ImucalError(f"{LABELS[sensor]} columns incomplete: missing {', '.join(missing)}"
                               f"; map them with --columns{guess_hint(table, sensors)}",
                               source=table.source, field="columns")
-        values = np.column_stack([table.column(mapping[r]) for r in roles])
+        values = table.columns([mapping[r] for r in roles])
         part = Part(sensor, table.source, values, counter_label=counter)
         if "t" in mapping:
             ti = mapping["t"]
@@ -185,7 +183,7 @@ def _extra_parts(table: Table, mapping: dict[str, int], used: set[int],
             continue
         cols = [found[r][0] for r in roles]
         units = {found[r][1] for r in roles}
-        part = Part(instance, table.source, np.column_stack([table.column(c) for c in cols]),
+        part = Part(instance, table.source, table.columns(cols),
                     unit_hint=units.pop() if len(units) == 1 else None)
         if "t" in mapping:
             ti = mapping["t"]

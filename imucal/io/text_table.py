@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import re
 import warnings
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -25,12 +26,26 @@ if TYPE_CHECKING:
 
 
 _COMMENT_LINE = re.compile(rb"(?m)^[ \t]*#[^\n]*")
+COMMA_LOOK = 4096  # bytes of the body that say whether ";"-separated text has decimal commas
 
 
-def read_text(data: bytes, source: str) -> Table:
-    data = data.removeprefix(b"\xef\xbb\xbf")
-    if b"\n" not in data and b"\r" in data:
-        data = data.replace(b"\r", b"\n")  # classic Mac OS line endings: CR alone (issue 27)
+@dataclass(frozen=True)
+class Head:
+    """What the lines above a text table's rows say: its column names (None: none), its width,
+    separator and preamble, and where its body starts (``body_start`` in the file's bytes after
+    a BOM; ``first_line`` the body's 1-based file line)."""
+
+    names: list[str] | None
+    n_fields: int
+    sep: str
+    body_start: int
+    first_line: int
+    preamble: tuple[tuple[int, str, str], ...]
+
+
+def read_head(data: bytes, source: str) -> Head:
+    """The head of a text table from ``data``, the file's bytes (or its first part: a head
+    that runs to the end of ``data`` is incomplete and read again from the whole file)."""
     found = find_table_start(data)
     start, end, comments = found.start, found.end, found.comments
     if start is None:
@@ -49,19 +64,36 @@ def read_text(data: bytes, source: str) -> Table:
     else:
         body_start = start
         names = _commented_header(comments, sep, len(fields))
-    body = data[body_start:]
     first_line = data.count(b"\n", 0, body_start) + 1  # 1-based file line of the body's start
-    skipped = 0
-    if b"#" in body:  # comment lines among the rows: emptied (a line's number stays its own)
-        body, skipped = _COMMENT_LINE.subn(b"", body)
-    decimal_comma = sep == ";" and b"," in body[:4096]  # "1,5;2,0": European spreadsheets
-    n_fields = len(names) if names else len(fields)
-    body, cut = drop_cut_last_line(body, sep, n_fields, decimal_comma, first_line)
-    table = _parse_body(body, sep, names, decimal_comma, first_line, source)
-    table.preamble = tuple(found.pairs)
-    table.notes = ((f"{source}: {cut}",) if cut else ()) + (
+    return Head(names, len(names) if names else len(fields), sep, body_start, first_line,
+                tuple(found.pairs))
+
+
+def drop_comment_lines(body: bytes) -> tuple[bytes, int]:
+    """Comment lines among the rows emptied (a line's number stays its own), and how many."""
+    if b"#" not in body:
+        return body, 0
+    return _COMMENT_LINE.subn(b"", body)
+
+
+def reader_notes(source: str, cut: str | None, skipped: int) -> tuple[str, ...]:
+    return ((f"{source}: {cut}",) if cut else ()) + (
         (f"{source}: {plural(skipped, 'comment line')} (#) among the rows skipped",)
         if skipped else ())
+
+
+def read_text(data: bytes, source: str) -> Table:
+    data = data.removeprefix(b"\xef\xbb\xbf")
+    if b"\n" not in data and b"\r" in data:
+        data = data.replace(b"\r", b"\n")  # classic Mac OS line endings: CR alone (issue 27)
+    head = read_head(data, source)
+    sep = head.sep
+    body, skipped = drop_comment_lines(data[head.body_start:])
+    decimal_comma = sep == ";" and b"," in body[:COMMA_LOOK]  # "1,5;2,0": European spreadsheets
+    body, cut = drop_cut_last_line(body, sep, head.n_fields, decimal_comma, head.first_line)
+    table = parse_body(body, sep, head.names, decimal_comma, head.first_line, source)
+    table.preamble = head.preamble
+    table.notes = reader_notes(source, cut, skipped)
     return table
 
 
@@ -93,11 +125,17 @@ def _commented_header(comments: list[str], sep: str, n_fields: int) -> list[str]
     return None
 
 
-def _parse_body(body: bytes, sep: str, names: list[str] | None, decimal_comma: bool,
-                first_line: int, source: str) -> Table:
+def parse_body(body: bytes, sep: str, names: list[str] | None, decimal_comma: bool,
+               first_line: int, source: str, n_cols: int | None = None,
+               dates: frozenset[int] | None = None) -> Table:
+    """The rows of ``body``: the fast way when it is a plain numeric table, else the careful
+    way. ``n_cols`` and ``dates`` (the width and the date-time columns) are given for a later
+    piece of a table read a piece at a time (:mod:`imucal.io.text_pieces`), as its first piece
+    found them."""
     table = _parse_fast(body, sep, names, decimal_comma, source)
     if table is None:
-        table = _parse_careful(body, sep, names, decimal_comma, first_line, source)
+        table = _parse_careful(body, sep, names, decimal_comma, first_line, source, n_cols,
+                               dates)
     return table
 
 
@@ -139,7 +177,8 @@ def _parse_fast(body: bytes, sep: str, names: list[str] | None, decimal_comma: b
 
 
 def _parse_careful(body: bytes, sep: str, names: list[str] | None, decimal_comma: bool,
-                   first_line: int, source: str) -> Table:
+                   first_line: int, source: str, width: int | None = None,
+                   dates: frozenset[int] | None = None) -> Table:
     """Check the shape of every row, then read strings and convert column by column, so a
     ragged row or a bad field is reported with its line number."""
     import polars as pl
@@ -150,7 +189,8 @@ def _parse_careful(body: bytes, sep: str, names: list[str] | None, decimal_comma
         raise ImucalError("no data rows after the header", source=source)
     csv_sep = "," if whitespace else sep
     nl = clean.find(b"\n")
-    n_cols = len(names) if names else _count_fields(clean[: nl if nl >= 0 else None], csv_sep)
+    n_cols = width or (len(names) if names else
+                       _count_fields(clean[: nl if nl >= 0 else None], csv_sep))
     lines = first_line + _content_lines(body, whitespace)
     counts = _fields_per_line(clean, csv_sep)
     bad = np.flatnonzero(counts != n_cols)
@@ -169,9 +209,10 @@ def _parse_careful(body: bytes, sep: str, names: list[str] | None, decimal_comma
                        new_columns=keys, encoding="utf8-lossy", quote_char=None)
     if names is None and n_cols > 1 and text.get_column(keys[-1]).null_count() == text.height:
         n_cols -= 1  # a trailing separator on every line is not a column
-    first = text.row(0) if text.height else (None,) * n_cols
-    dates = frozenset(i for i in range(n_cols)
-                      if first[i] is not None and _DATETIME.match(first[i].strip(" \t\"'")))
+    if dates is None:
+        first = text.row(0) if text.height else (None,) * n_cols
+        dates = frozenset(i for i in range(n_cols) if first[i] is not None
+                          and _DATETIME.match(first[i].strip(" \t\"'")))
 
     def column(i: int) -> np.ndarray:
         series = text.get_column(keys[i])
