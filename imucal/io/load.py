@@ -203,8 +203,8 @@ def _extra_streams(opts: LoadOptions) -> list[Stream]:
                           np.ascontiguousarray(values, dtype=float), unit,
                           f"{part.source}: columns {roles}", time_source="the table's time"))
         # a magnetometer is calibrated over the whole session (stages/mag.py), the rest kept
-        opts.notes.append(beside_note(label, roles, len(t), *(
-            ("calibrated on its own (the magnetometer's section)",) if kind == "mag" else ())))
+        mag = ("imucal calibrate fits it on its own clock (the magnetometer's section)",)
+        opts.notes.append(beside_note(label, roles, len(t), *(mag if kind == "mag" else ())))
     return out
 
 
