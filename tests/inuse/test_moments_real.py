@@ -112,8 +112,11 @@ def test_ardupilot_log_holds_no_rest_of_3_s_and_no_moment(shared_data):
     s = imucal.load_session(path)
     log = mavutil.mavlink_connection(str(path))
     rows: dict[str, list] = {"STAT": [], "CTUN": [], "BARO": []}
-    while (msg := log.recv_match(type=list(rows))) is not None:
-        rows[msg.get_type()].append(msg.to_dict())
+    try:
+        while (msg := log.recv_match(type=list(rows))) is not None:
+            rows[msg.get_type()].append(msg.to_dict())
+    finally:
+        log.close()  # not left to the garbage collector: it would warn inside another test
     assert rows["STAT"] and all(r["isFlying"] == 0 and r["Armed"] == 1 for r in rows["STAT"])
     assert all(r["ThrOut"] == 0 for r in rows["CTUN"])
     assert max(abs(r["Alt"]) for r in rows["BARO"]) < 0.2  # m; measured 0.13

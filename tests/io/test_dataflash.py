@@ -36,8 +36,11 @@ def _reference(path: Path) -> dict[str, list[dict]]:
 
     log = mavutil.mavlink_connection(str(path))
     out: dict[str, list[dict]] = {}
-    while (m := log.recv_match(type=["IMU", "IMU2", "MAG", "MAG2", "MAG3"])) is not None:
-        out.setdefault(m.get_type(), []).append(m.to_dict())
+    try:
+        while (m := log.recv_match(type=["IMU", "IMU2", "MAG", "MAG2", "MAG3"])) is not None:
+            out.setdefault(m.get_type(), []).append(m.to_dict())
+    finally:
+        log.close()  # left to the garbage collector, it warned inside whichever test ran then
     return out
 
 

@@ -239,6 +239,17 @@ def _read_dataflash(path: Path, keep: Callable[[str], bool] | None, fast: bool =
     from pymavlink import DFReader
 
     class Reader(DFReader.DFReader_binary):
+        def __init__(self, *args, **kwargs) -> None:
+            try:
+                super().__init__(*args, **kwargs)
+            except BaseException:
+                # pymavlink opens the file first: a log it cannot index would leave it open
+                # (a ResourceWarning wherever the collector runs next). Its map may still be
+                # referenced by the indexer's arrays: the collector frees it with them.
+                if getattr(self, "filehandle", None) is not None:
+                    self.filehandle.close()
+                raise
+
         def init_clock(self) -> None:
             """The streams keep the log's own TimeUS/SampleUS: pymavlink's search for a GPS
             time base (every message decoded, in Python, when the GPS has no fix, as on a
