@@ -2,19 +2,13 @@
 known to the targets, and writes no calibration (as `imucal calibrate --spec`); one within them
 passes."""
 
-import os
-import socket
 import subprocess
-import sys
-from pathlib import Path
 
 import pytest
+from synth_device import free_port, synth_stream
 
 from imucal.cli.main import main
 
-ROOT = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
-CLI = [sys.executable, "-c", "import sys; from imucal.cli.main import main; sys.exit(main())"]
 SAMPLES = 20147  # 40 poses, seed 3, at 100 Hz
 
 
@@ -26,13 +20,9 @@ SAMPLES = 20147  # 40 poses, seed 3, at 100 Hz
 def test_spec(tmp_path, capsys, limits, rc, stopped):
     spec = tmp_path / "limits.toml"
     spec.write_text(limits)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    synth = subprocess.Popen(CLI + ["synth", str(tmp_path / "s.mat"), "--poses", "40",
-                                    "--seed", "3", "--stream", f"tcp://127.0.0.1:{port}",
-                                    "--speed", "50"],
-                             env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    port = free_port()
+    synth = synth_stream(tmp_path, f"tcp://127.0.0.1:{port}", stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL)
     out = tmp_path / "D"
     try:
         got = main(["capture", f"tcp://127.0.0.1:{port}", "--out", str(out), "--no-view",

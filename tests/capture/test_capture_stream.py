@@ -9,13 +9,13 @@ import select
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from synth_device import CLI, ENV, free_port, synth_stream
 
 import imucal
 from imucal.capture.run import calibrate_file, capture
@@ -28,9 +28,6 @@ from imucal.models import acc_theta, gyro_theta
 from imucal.session import STANDARD_GRAVITY
 from imucal.synth import make_session
 
-ROOT = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
-CLI = [sys.executable, "-c", "import sys; from imucal.cli.main import main; sys.exit(main())"]
 POSES, SEED = 40, 3  # about 200 s at 100 Hz; the default target is met at about 20 poses
 
 
@@ -40,10 +37,8 @@ def truth():
 
 
 def _synth(tmp: Path, stream: str, speed: str = "50", **kw) -> subprocess.Popen:
-    return subprocess.Popen(CLI + ["synth", str(tmp / "s.mat"), "--truth", str(tmp / "t.json"),
-                                   "--poses", str(POSES), "--seed", str(SEED), "--stream",
-                                   stream, "--speed", speed], env=ENV, stderr=subprocess.PIPE,
-                            **kw)
+    return synth_stream(tmp, stream, "--truth", str(tmp / "t.json"), poses=POSES, seed=SEED,
+                        speed=speed, stderr=subprocess.PIPE, **kw)
 
 
 def _within_truth(path: Path, truth, g: float = 1.0) -> imucal.Result:
@@ -103,14 +98,8 @@ def test_stdin_stops_by_itself_and_equals_batch(tmp_path, truth):
     _within_truth(out / "session.csv", tr)
 
 
-def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_tcp_through_the_command_line(tmp_path, truth, capsys):
-    port = _free_port(socket.SOCK_STREAM)
+    port = free_port(socket.SOCK_STREAM)
     synth = _synth(tmp_path, f"tcp://127.0.0.1:{port}", stdout=subprocess.DEVNULL)
     out = tmp_path / "D"
     try:
@@ -236,10 +225,9 @@ def test_sigkill_leaves_every_flushed_sample(tmp_path, truth):
 
 def test_motioncal_raw_lines_over_udp(tmp_path, truth):
     source = UdpSource("127.0.0.1", 0)
-    synth = subprocess.Popen(
-        CLI + ["synth", str(tmp_path / "s.mat"), "--poses", str(POSES), "--seed", str(SEED),
-               "--stream", f"udp://127.0.0.1:{source.port}", "--speed", "50", "--format",
-               "motioncal"], env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    synth = synth_stream(tmp_path, f"udp://127.0.0.1:{source.port}", "--format", "motioncal",
+                         poses=POSES, seed=SEED, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE)
     try:
         report = capture(source, tmp_path / "D", PRESETS["default"], rate=100.0, until=60)
     finally:
@@ -257,12 +245,11 @@ def test_motioncal_raw_lines_over_udp(tmp_path, truth):
 
 
 def test_mavlink_highres_imu_over_udp(tmp_path, truth):
-    port = _free_port(socket.SOCK_DGRAM)
+    port = free_port(socket.SOCK_DGRAM)
     source = open_source(f"mavlink:udp:127.0.0.1:{port}")
-    synth = subprocess.Popen(
-        CLI + ["synth", str(tmp_path / "s.mat"), "--poses", str(POSES), "--seed", str(SEED),
-               "--stream", f"udp://127.0.0.1:{port}", "--speed", "50", "--format", "mavlink"],
-        env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    synth = synth_stream(tmp_path, f"udp://127.0.0.1:{port}", "--format", "mavlink",
+                         poses=POSES, seed=SEED, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE)
     try:
         report = capture(source, tmp_path / "D", PRESETS["default"], until=60)
     finally:

@@ -2,33 +2,22 @@
 still state, the poses on the sphere, the fits' worst standard error over its target, the
 guide; read back from the file."""
 
-import os
 import signal
-import socket
 import subprocess
-import sys
 import urllib.request
-from pathlib import Path
 
 import numpy as np
 import pytest
+from synth_device import CLI, ENV, free_port, synth_stream
 
 from imucal.cli.main import main
 from viewer import readback
 
-ROOT = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
-CLI = [sys.executable, "-c", "import sys; from imucal.cli.main import main; sys.exit(main())"]
-
 
 def test_rrd_of_a_tcp_capture(tmp_path, capsys):
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    synth = subprocess.Popen(CLI + ["synth", str(tmp_path / "s.mat"), "--poses", "40",
-                                    "--seed", "3", "--stream", f"tcp://127.0.0.1:{port}",
-                                    "--speed", "50"],
-                             env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    port = free_port()
+    synth = synth_stream(tmp_path, f"tcp://127.0.0.1:{port}", stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL)
     rrd = tmp_path / "capture.rrd"
     try:
         rc = main(["capture", f"tcp://127.0.0.1:{port}", "--out", str(tmp_path / "D"),
@@ -73,9 +62,7 @@ def test_rrd_of_a_tcp_capture(tmp_path, capsys):
 def test_web_live_view_serves_while_capturing(tmp_path):
     """--web: the web viewer answers at the printed address during the capture, the recording
     is also saved with --rrd, and the view stays until Ctrl-C; the exit code is the pass."""
-    synth = subprocess.Popen(CLI + ["synth", str(tmp_path / "s.mat"), "--poses", "40",
-                                    "--seed", "3", "--stream", "-", "--speed", "50"],
-                             env=ENV, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    synth = synth_stream(tmp_path, "-", stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     rrd = tmp_path / "capture.rrd"
     cap = subprocess.Popen(CLI + ["capture", "-", "--out", str(tmp_path / "D"), "--web",
                                   "--rrd", str(rrd), "--json-status"],
