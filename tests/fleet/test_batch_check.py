@@ -10,17 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_run import run
 
 from imucal.cli.main import main
 
 pytest.importorskip("distributed")
-
-
-def run(capsys, *args) -> tuple[int, str, str]:
-    rc = main([str(a) for a in args])
-    out = capsys.readouterr()
-    assert "Traceback" not in out.err
-    return rc, out.out, out.err
 
 
 @pytest.fixture(scope="module")

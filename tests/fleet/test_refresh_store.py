@@ -12,19 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_run import run
 
 from imucal.cli.main import main
 from imucal.fleet import refresh_store
 
 WHEN = 1_790_000_000  # the recording's modification time: 2026-09-21T14:13:20Z
 STAMP = "2026-09-21T141320Z"
-
-
-def run(capsys, *args) -> tuple[int, str, str]:
-    rc = main([str(a) for a in args])
-    out = capsys.readouterr()
-    assert "Traceback" not in out.err
-    return rc, out.out, out.err
 
 
 @pytest.fixture(scope="module")

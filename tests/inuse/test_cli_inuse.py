@@ -7,15 +7,9 @@ import json
 
 import numpy as np
 import pytest
+from cli_run import run
 
 from imucal.cli.main import main
-
-
-def run(capsys, *args) -> tuple[int, str, str]:
-    rc = main([str(a) for a in args])
-    out = capsys.readouterr()
-    assert "Traceback" not in out.err
-    return rc, out.out, out.err
 
 
 @pytest.fixture(scope="module")
