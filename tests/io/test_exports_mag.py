@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from export_files import FILE_FORMATS, export_all
 
 import imucal
-from imucal.io.exports import FORMATS, export
+from imucal.io.exports import export
 from imucal.synth import make_session
 from tests.io.test_exports import _FUSION_STANDIN, _compile, needs_gcc, read_yaml
 
@@ -316,18 +317,6 @@ def test_plain_exports_carry_the_magnetometer(fmt, mag, tmp_path):
     assert np.allclose(np.array(m["R_am"]) @ np.array(m["M"]), m["A"], rtol=0, atol=1e-15)
 
 
-# The formats that write one file (c_runtime writes a directory of C: it carries no
-# magnetometer, and tests/io/test_c_runtime.py checks it)
-FILE_FORMATS = [f for f in FORMATS if not FORMATS[f].directory]
-
-
-def _export_all(path: Path, out: Path) -> dict[str, bytes]:
-    out.mkdir()
-    for fmt in FILE_FORMATS:
-        export(path, fmt, out / f"x.{fmt}")
-    return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
-
-
 def test_without_a_calibrated_magnetometer_the_exports_are_unchanged(mag, tmp_path):
     """No section, or one that says calibrated: false, give the same bytes in every format;
     and the section adds lines to the autopilot files without changing any other."""
@@ -340,13 +329,13 @@ def test_without_a_calibrated_magnetometer_the_exports_are_unchanged(mag, tmp_pa
     failed = tmp_path / "b" / "calib.json"
     failed.write_text(json.dumps(doc | {"magnetometer": {"calibrated": False, "unit": "gauss",
                                                           "M": "not a matrix"}}))
-    a = _export_all(without, tmp_path / "a" / "out")
-    b = _export_all(failed, tmp_path / "b" / "out")
+    a = export_all(without, tmp_path / "a" / "out")
+    b = export_all(failed, tmp_path / "b" / "out")
     assert a == b and len(a) == len(FILE_FORMATS) + 1  # imu_tk writes two files
     for name, data in a.items():
         text = data.decode()
         assert not re.search(r"COMPASS|CAL_MAG|magnetometer|SoftIron|imucal_mag", text), name
-    with_mag = _export_all(path, tmp_path / "m")
+    with_mag = export_all(path, tmp_path / "m")
     assert with_mag.keys() == a.keys()
     for name in ("x.ardupilot", "x.px4"):
         old, new = a[name].decode().splitlines(), with_mag[name].decode().splitlines()

@@ -17,13 +17,13 @@ from __future__ import annotations
 import json
 import re
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
+from export_files import export_all
 
 import imucal
-from imucal.io.exports import FORMATS, export
+from imucal.io.exports import export
 from imucal.pipeline import calibrate_temperature, calibrate_triads
 from imucal.synth import SecondTriad, TemperatureProfile, make_session
 from tests.io.test_exports import _compile, needs_gcc, read_yaml
@@ -292,17 +292,6 @@ def test_plain_exports_carry_triads_and_temperature(fmt, device, tmp_path):
     assert np.allclose(got, want, rtol=0, atol=1e-13)
 
 
-# The formats that write one file (c_runtime writes a directory)
-FILE_FORMATS = [f for f in FORMATS if not FORMATS[f].directory]
-
-
-def _export_all(path: Path, out: Path) -> dict[str, bytes]:
-    out.mkdir()
-    for fmt in FILE_FORMATS:
-        export(path, fmt, out / f"x.{fmt}")
-    return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
-
-
 def test_without_triads_or_temperature_the_exports_are_unchanged(device, tmp_path):
     """A file without the sections exports as before: the formats that do not carry them are
     the same bytes with and without; the others hold one instance and no thermal words."""
@@ -313,8 +302,8 @@ def test_without_triads_or_temperature_the_exports_are_unchanged(device, tmp_pat
     plain.write_text(json.dumps({k: v for k, v in doc.items()
                                  if k not in ("triads", "temperature")}))
     assert imucal.io.exports.read_export_input(plain).extras is None
-    a = _export_all(plain, tmp_path / "a")
-    b = _export_all(path, tmp_path / "b")
+    a = export_all(plain, tmp_path / "a")
+    b = export_all(path, tmp_path / "b")
     for name in ("x.imu_tk_acc.calib", "x.imu_tk_gyro.calib", "x.fusion", "x.kalibr"):
         assert a[name] == b[name], name
     for name, data in a.items():
