@@ -16,6 +16,7 @@ from imucal.numerics.directions import distinct_orientations
 from imucal.numerics.windows import block_means
 from imucal.stages.detect_runs import streamed_still_runs
 from imucal.stages.detect_stat import CleanRows, Statistic
+from imucal.stages.detect_tuning import quiet_level
 
 # The detector's values for moments of use (method.md §10): a 0.5 s window (the variance of a
 # sway of 0.2-0.6 Hz stays small over it), a shortest moment of 2 s, each axis' variance up to
@@ -104,8 +105,7 @@ def find_moments(acc_raw, acc_cal, t_acc: np.ndarray, gyro_cal, t_gyro: np.ndarr
         # Flat windows (every axis constant: a coarse quantiser at rest; M1 is then rounding
         # error) say nothing of the noise, as in §1's quiet level; kept, they make the level
         # about 0 and nothing still.
-        s2 = s2[s2 > 3.0 * (FLAT_SIGMA_G * g) ** 4]
-        level = float(np.quantile(s2, QUIET_QUANTILE)) if len(s2) else 0.0
+        level = quiet_level(s2, QUIET_QUANTILE, flat=3.0 * (FLAT_SIGMA_G * g) ** 4)
         level_from = "the quietest 1 % of the recording's windows (no noise stored)"
     threshold = K_INUSE * level
     runs = streamed_still_runs(stat, threshold, None, EMPTY)

@@ -212,13 +212,14 @@ def min_len_for(window: int) -> int:
     return max(1, int(round(window * THESIS_MIN_LEN_S / THESIS_WINDOW_S)))
 
 
-def quiet_level(sample: np.ndarray) -> float:
+def quiet_level(sample: np.ndarray, quantile: float = QUIET_QUANTILE,
+                flat: float = 0.0) -> float:
     """The noise level of the quietest stretches: a low quantile of M1 over short windows, from
-    every stride-th window of a long recording (:class:`WindowPass.sample`). Exact zeros (a
-    flat, clipped or quantised axis) say nothing about the noise and are left out; a quantile
-    is not moved by a few wild windows."""
-    s = sample[sample > 0]
-    return float(np.quantile(s, QUIET_QUANTILE)) if len(s) else 0.0
+    every stride-th window of a long recording (:class:`WindowPass.sample`). Flat windows (M1
+    at or below ``flat``: a flat, clipped or quantised axis) say nothing about the noise and
+    are left out; a quantile is not moved by a few wild windows."""
+    s = sample[sample > flat]
+    return float(np.quantile(s, quantile)) if len(s) else 0.0
 
 
 def _scan(acc, wp: WindowPass, ref: float, ks: tuple[float, ...], min_len: int,
